@@ -1,0 +1,49 @@
+# rgbd2scene: every target works on a fresh machine (install runs first where needed).
+PY ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEMO_OUT ?= demo_out
+SHELL := /bin/bash
+
+.PHONY: install system-deps test demo bench lint sample clean
+
+install: $(STAMP)
+
+# open3d needs libusb-1.0 at import time; Debian-based machines get it from apt.
+system-deps:
+	@if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then \
+	  echo "installing system library libusb-1.0-0"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 libegl1 libgl1 libgomp1 >/dev/null; \
+	fi
+
+$(STAMP): pyproject.toml | system-deps
+	@command -v $(PY) >/dev/null || { echo "error: $(PY) not found (bpy 5.0.1 wheels need CPython 3.11)"; exit 2; }
+	[ -x $(BIN)/python ] || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip setuptools wheel
+	$(BIN)/pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+test: install
+	$(BIN)/python -m pytest -q tests
+
+demo: install
+	$(BIN)/rgbd2scene scene --rgb data_samples/tissue/rgb.png --depth data_samples/tissue/depth.png \
+	  --camera data_samples/tissue/camera.json -o $(DEMO_OUT)/scene
+	$(BIN)/rgbd2scene render $(DEMO_OUT)/scene -o $(DEMO_OUT)/dataset --frames 8
+	$(BIN)/rgbd2scene verify $(DEMO_OUT)/dataset
+	@echo "demo results: $(DEMO_OUT)/scene (mesh.ply, scene.blend, overview.png) and $(DEMO_OUT)/dataset"
+
+bench: install
+	$(BIN)/python benchmarks/run_all.py
+
+lint: install
+	$(BIN)/ruff check rgbd2scene render tests benchmarks data_samples
+
+# Regenerate the bundled sample (deterministic, seeded).
+sample: install
+	$(BIN)/python data_samples/make_tissue_sample.py data_samples/tissue
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) bench_out .pytest_cache

@@ -1,0 +1,7 @@
+"""rgbd2scene: RGB-D capture -> textured mesh -> Blender stereo-endoscope scene -> ground-truth dataset.
+
+This package is the numpy core and never imports ``bpy``; everything that touches Blender is in
+the sibling package ``render``.
+"""
+
+__version__ = "0.1.0"
