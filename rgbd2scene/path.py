@@ -43,7 +43,7 @@ def look_at(position, target, up=(0.0, -1.0, 0.0)) -> np.ndarray:
     position = np.asarray(position, dtype=np.float64)
     z = np.asarray(target, dtype=np.float64) - position
     z /= np.linalg.norm(z)
-    x = np.cross(z, -np.asarray(up, dtype=np.float64))
+    x = np.cross(-np.asarray(up, dtype=np.float64), z)
     if np.linalg.norm(x) < 1e-9:  # looking along up: pick any perpendicular
         x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
     x /= np.linalg.norm(x)
