@@ -115,8 +115,9 @@ def _sun_unrotate(raw: np.ndarray) -> np.ndarray:
 
 def _looks_like_sun(raw: np.ndarray) -> bool:
     # Depth below 8.192 m rotates to a multiple of 8; plain mm or TUM depth is not so aligned.
+    # (--depth-format png overrides this guess; a few distinct levels, as in synthetic data, are no evidence.)
     nz = raw[raw > 0]
-    return nz.size > 1000 and float(np.mean(nz % 8 == 0)) > 0.9
+    return nz.size > 1000 and float(np.mean(nz % 8 == 0)) > 0.9 and np.unique(nz).size > 100
 
 
 def read_depth(

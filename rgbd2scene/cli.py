@@ -1,0 +1,136 @@
+"""Command line: ``rgbd2scene <command>`` (CONVENTIONS §5).
+
+User errors print one line ``error: ...`` on stderr and exit with status 2, without a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from .errors import UserError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with the project's one-line error format."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {self.prog}: {message} (see --help)\n")
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must look like 512x256, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+def _add_capture_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("capture")
+    g.add_argument("--rgb", required=True, help="colour image (PNG, JPEG, PPM, BMP)")
+    g.add_argument("--depth", required=True, help="depth: 16-bit PNG, float EXR/.npy (m), NYU raw PGM, SUN PNG")
+    cam = g.add_mutually_exclusive_group()
+    cam.add_argument("--camera", help="camera JSON: {width,height,fx,fy,cx,cy} or Open3D intrinsic_matrix")
+    cam.add_argument("--preset", help="named camera: primesense (default), kinect_v1, tum_fr1, tum_fr2, tum_fr3")
+    g.add_argument("--depth-scale", type=float, help="depth units per metre (1000 for mm PNG, 5000 for TUM)")
+    g.add_argument("--depth-format", default="auto", help="auto, png, sun, nyu, exr, npy")
+    m = p.add_argument_group("reconstruction")
+    m.add_argument("--fill", default="auto", help="hole filling: auto, inpaint, colorization, biharmonic, "
+                   "background, none (default auto)")
+    m.add_argument("--max-jump", type=float, default=0.03,
+                   help="drop triangles whose relative depth jump exceeds this (default 0.03)")
+    m.add_argument("--max-grazing", type=float, default=85.0,
+                   help="drop triangles seen more obliquely than this many degrees (default 85)")
+    m.add_argument("--smooth", default="ray", help="smoothing: ray (keeps texture registered), taubin, "
+                   "corrective, none (default ray)")
+    m.add_argument("--smooth-iterations", type=int, default=10, help="smoothing strength (default 10)")
+    m.add_argument("--no-overview", action="store_true", help="skip overview.png")
+
+
+def _load_capture(args):
+    from .camera import PRESET_DEPTH_SCALE, load_camera_json, preset
+    from .capture import load_capture
+
+    scale = args.depth_scale
+    if args.camera:
+        intr, json_scale = load_camera_json(args.camera)
+        scale = scale if scale is not None else json_scale
+    else:
+        name = args.preset or "primesense"
+        intr = preset(name)
+        if scale is None and args.preset:
+            scale = PRESET_DEPTH_SCALE.get(name.lower())
+    return load_capture(args.rgb, args.depth, intr, depth_scale=scale, depth_format=args.depth_format)
+
+
+def _mesh_options(args):
+    from .pipeline import MeshOptions
+
+    return MeshOptions(fill=args.fill, max_relative_jump=args.max_jump, max_grazing_deg=args.max_grazing,
+                       smooth=args.smooth, smooth_iterations=args.smooth_iterations,
+                       overview=not args.no_overview)
+
+
+def cmd_mesh(args) -> int:
+    from .pipeline import ensure_output_dir, reconstruct, write_mesh_folder
+
+    t0 = time.perf_counter()
+    ensure_output_dir(args.output)
+    capture = _load_capture(args)
+    recon = reconstruct(capture, _mesh_options(args))
+    write_mesh_folder(args.output, recon)
+    t = recon.timings
+    print(f"fill {t['fill_s']:.3f}s ({recon.filled.method}), mesh {t['mesh_s']:.3f}s, "
+          f"smooth {t['smooth_s']:.3f}s, compute {t['compute_s']:.3f}s, write {t['write_s']:.3f}s, "
+          f"total {time.perf_counter() - t0:.2f}s")
+    print(f"{len(recon.mesh.vertices)} vertices, {len(recon.mesh.triangles)} triangles -> {args.output}/mesh.ply")
+    return 0
+
+
+def cmd_preview(args) -> int:
+    from .preview import preview
+
+    out = preview(args.mesh, screenshot=args.screenshot, width=args.width, height=args.height)
+    if out:
+        print(f"screenshot: {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="rgbd2scene", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    p = sub.add_parser("mesh", help="fill holes, back-project and smooth: OUT/mesh.ply and OUT/scene.json")
+    _add_capture_args(p)
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.set_defaults(func=cmd_mesh)
+
+    p = sub.add_parser("preview", help="Open3D viewer of a mesh or scene; --screenshot renders headless")
+    p.add_argument("mesh", help="mesh (PLY/OBJ) or scene folder")
+    p.add_argument("--screenshot", help="write a PNG instead of opening a window")
+    p.add_argument("--width", type=int, default=1024)
+    p.add_argument("--height", type=int, default=768)
+    p.set_defaults(func=cmd_preview)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
