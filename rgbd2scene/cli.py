@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 from .errors import UserError
 
@@ -30,10 +29,10 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _add_capture_args(p: argparse.ArgumentParser) -> None:
+def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None:
     g = p.add_argument_group("capture")
-    g.add_argument("--rgb", required=True, help="colour image (PNG, JPEG, PPM, BMP)")
-    g.add_argument("--depth", required=True, help="depth: 16-bit PNG, float EXR/.npy (m), NYU raw PGM, SUN PNG")
+    g.add_argument("--rgb", required=required, help="colour image (PNG, JPEG, PPM, BMP)")
+    g.add_argument("--depth", required=required, help="depth: 16-bit PNG, float EXR/.npy (m), NYU raw PGM, SUN PNG")
     cam = g.add_mutually_exclusive_group()
     cam.add_argument("--camera", help="camera JSON: {width,height,fx,fy,cx,cy} or Open3D intrinsic_matrix")
     cam.add_argument("--preset", help="named camera: primesense (default), kinect_v1, tum_fr1, tum_fr2, tum_fr3")
@@ -92,6 +91,70 @@ def cmd_mesh(args) -> int:
     return 0
 
 
+def _add_scene_args(p: argparse.ArgumentParser) -> None:
+    from .path import PATH_KINDS
+    from .scene import MATERIALS
+
+    d = __import__("rgbd2scene.scenebuild", fromlist=["SceneOptions"]).SceneOptions()
+    g = p.add_argument_group("scene")
+    g.add_argument("--mesh-dir", help="build from a folder made by 'rgbd2scene mesh' instead of --rgb/--depth")
+    g.add_argument("--size", type=_size, default=d.size, help="endoscope image size WxH (default 512x256)")
+    g.add_argument("--fov", type=float, default=d.fov_x_deg, help="horizontal field of view, degrees (default 70)")
+    g.add_argument("--baseline", type=float, default=d.baseline, help="stereo baseline, metres (default 0.005)")
+    g.add_argument("--path", default=d.path, choices=[k for k in PATH_KINDS if k != "waypoints"],
+                   help="generated camera path (default scan)")
+    g.add_argument("--path-file", help="JSON path file of waypoints (overrides --path)")
+    g.add_argument("--frames", type=int, default=d.frames, help="frames in the path (default 60)")
+    g.add_argument("--fps", type=float, default=d.fps, help="frames per second (default 30)")
+    g.add_argument("--standoff", type=float, default=d.standoff, help="distance to the tissue, metres (default 0.04)")
+    g.add_argument("--seed", type=int, default=d.seed, help="seed of generated paths (default 0)")
+    g.add_argument("--material", default=d.material, choices=MATERIALS, help="tissue look (default wet_tissue)")
+    g.add_argument("--light", default=d.light, choices=("spot", "point"), help="light at the tip (default spot)")
+    g.add_argument("--light-power", type=float, default=d.light_power_w, help="light power, watts (default 0.05)")
+
+
+def cmd_scene(args) -> int:
+    from .pipeline import ensure_output_dir, reconstruct, scene_record, write_mesh_folder
+    from .scenebuild import SceneOptions, build_scene_folder, load_mesh_folder
+
+    t0 = time.perf_counter()
+    out = ensure_output_dir(args.output)
+    options = SceneOptions(size=args.size, fov_x_deg=args.fov, baseline=args.baseline, path=args.path,
+                           path_file=args.path_file, frames=args.frames, fps=args.fps, standoff=args.standoff,
+                           seed=args.seed, material=args.material, light=args.light,
+                           light_power_w=args.light_power)
+    if args.mesh_dir:
+        mesh, record = load_mesh_folder(args.mesh_dir, out)
+    elif args.rgb and args.depth:
+        (out / "scene.json").unlink(missing_ok=True)
+        recon = reconstruct(_load_capture(args), _mesh_options(args))
+        write_mesh_folder(out, recon, finalize=False)
+        mesh, record = recon.mesh, scene_record(recon)
+    else:
+        raise UserError("scene: give --rgb and --depth (a capture) or --mesh-dir (a mesh folder)")
+    record = build_scene_folder(out, mesh, record, options)
+    cov = record["coverage"]
+    print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
+          f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {time.perf_counter() - t0:.1f}s -> "
+          f"{out}/scene.blend")
+    return 0
+
+
+def cmd_verify(args) -> int:
+    from .verify import format_report, verify_dataset
+
+    root = Path(args.dataset)
+    if not (root / "dataset.json").is_file():
+        raise UserError(f"{root}: not a dataset folder (no dataset.json)")
+    report = verify_dataset(root, mesh_path=args.mesh, progress=not args.quiet)
+    print(format_report(report))
+    if args.json:
+        from .atomic import write_json
+
+        write_json(args.json, report.to_dict())
+    return 0 if report.ok else 1
+
+
 def cmd_preview(args) -> int:
     from .preview import preview
 
@@ -109,6 +172,19 @@ def build_parser() -> argparse.ArgumentParser:
     _add_capture_args(p)
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.set_defaults(func=cmd_mesh)
+
+    p = sub.add_parser("scene", help="the mesh plus a Blender scene with a stereo endoscope on a path")
+    _add_capture_args(p, required=False)
+    _add_scene_args(p)
+    p.add_argument("-o", "--output", required=True, help="scene folder")
+    p.set_defaults(func=cmd_scene)
+
+    p = sub.add_parser("verify", help="check the ground truth of a dataset; non-zero exit when it fails")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--mesh", help="scene mesh to ray cast (default: the one dataset.json names)")
+    p.add_argument("--json", help="also write the report as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("preview", help="Open3D viewer of a mesh or scene; --screenshot renders headless")
     p.add_argument("mesh", help="mesh (PLY/OBJ) or scene folder")

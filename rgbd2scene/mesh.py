@@ -51,14 +51,11 @@ class Mesh:
 
     def copy(self, **changes) -> Mesh:
         """A copy that shares nothing mutable with this mesh except the texture (fields overridable)."""
-        fields = {
-            "vertices": self.vertices.copy(), "triangles": self.triangles.copy(),
-            "vertex_colors": None if self.vertex_colors is None else self.vertex_colors.copy(),
-            "uvs": None if self.uvs is None else self.uvs.copy(),
-            "pixels": None if self.pixels is None else self.pixels.copy(),
-        }
-        fields.update(changes)
-        return replace(self, **fields)
+        for name in ("vertices", "triangles", "vertex_colors", "uvs", "pixels"):
+            if name not in changes:
+                value = getattr(self, name)
+                changes[name] = None if value is None else value.copy()
+        return replace(self, **changes)
 
     def _face_cross(self) -> np.ndarray:
         v = self.vertices
@@ -103,7 +100,8 @@ class Mesh:
         """An ``open3d.geometry.TriangleMesh`` with vertex colours (and, if asked, UVs and texture).
 
         With ``with_texture`` the UVs go to ``triangle_uvs`` (the OBJ convention: v up) and the
-        capture image to ``textures``.
+        capture image to ``textures``, stored bottom row first as Open3D's own OBJ reader stores it
+        (so texel (row', col) = (v*H - 0.5, u*W - 0.5) in Open3D's image).
         """
         import open3d as o3d
 
@@ -117,7 +115,7 @@ class Mesh:
             tri_uvs = self.uvs[self.triangles].reshape(-1, 2).astype(np.float64)
             m.triangle_uvs = o3d.utility.Vector2dVector(tri_uvs)
             m.triangle_material_ids = o3d.utility.IntVector(np.zeros(self.n_triangles, dtype=np.int32))
-            m.textures = [o3d.geometry.Image(np.ascontiguousarray(self.texture))]
+            m.textures = [o3d.geometry.Image(np.ascontiguousarray(self.texture[::-1]))]
         return m
 
 

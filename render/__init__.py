@@ -1,0 +1,8 @@
+"""Everything that touches Blender (``bpy``): building the stereo-endoscope scene and rendering it.
+
+The numpy core (``rgbd2scene``) never imports ``bpy``; import this package only where Blender is needed.
+"""
+
+from .blender_scene import build_scene, set_intrinsics
+
+__all__ = ["build_scene", "set_intrinsics"]

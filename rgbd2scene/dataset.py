@@ -1,0 +1,173 @@
+"""The dataset folder of CONVENTIONS.md section 4 (numpy only, no ``bpy``).
+
+```
+DATASET/dataset.json
+DATASET/left/rgb/000000.png     8-bit sRGB
+DATASET/left/gt/000000.npz      the keys of section 3
+DATASET/right/rgb/000000.png
+DATASET/right/gt/000000.npz
+```
+
+Every file is written to a temporary name in its own folder and renamed into place, so a frame whose
+four files exist is complete; :func:`frame_done` is what resuming relies on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from .atomic import atomic_path, write_json, write_npz
+from .errors import UserError
+
+EYES = ("left", "right")
+DATASET_JSON = "dataset.json"
+#: Scratch folder of a running render (Blender's own outputs before they are renamed into place).
+WORK_DIR = ".work"
+#: Keys dataset.json must have (CONVENTIONS §4 plus this project's render record).
+REQUIRED_KEYS = ("width", "height", "frames", "fps", "baseline", "K", "objects", "scene", "software", "seed",
+                 "conventions_version", "render")
+FORMAT = "rgbd2scene-dataset"
+
+
+class FramePaths(NamedTuple):
+    rgb: Path
+    gt: Path
+
+
+def frame_name(index: int) -> str:
+    """Zero-based, six digits."""
+    if index < 0:
+        raise ValueError(f"frame index must be >= 0, got {index}")
+    return f"{int(index):06d}"
+
+
+def frame_paths(root: str | Path, eye: str, index: int) -> FramePaths:
+    """Paths of one eye's RGB image and ground-truth npz of frame ``index``."""
+    if eye not in EYES:
+        raise ValueError(f"eye must be one of {EYES}, got {eye!r}")
+    root = Path(root)
+    name = frame_name(index)
+    return FramePaths(root / eye / "rgb" / f"{name}.png", root / eye / "gt" / f"{name}.npz")
+
+
+def rgb_done(root: str | Path, index: int) -> bool:
+    return all(frame_paths(root, eye, index).rgb.is_file() for eye in EYES)
+
+
+def gt_done(root: str | Path, index: int) -> bool:
+    return all(frame_paths(root, eye, index).gt.is_file() for eye in EYES)
+
+
+def frame_done(root: str | Path, index: int, gt: bool = True) -> bool:
+    """Both eyes' RGB PNG present and, with ``gt``, both eyes' npz too."""
+    return rgb_done(root, index) and (not gt or gt_done(root, index))
+
+
+def write_rgb(path: str | Path, rgb_uint8: np.ndarray) -> None:
+    """8-bit RGB (H, W, 3) -> PNG, atomically (OpenCV writes to a temporary name, then rename)."""
+    import cv2
+
+    rgb = np.asarray(rgb_uint8)
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] not in (3, 4):
+        raise ValueError(f"rgb must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
+    bgr = np.ascontiguousarray(rgb[..., [2, 1, 0]])
+    with atomic_path(path, suffix=".png") as tmp:
+        if not cv2.imwrite(str(tmp), bgr):
+            raise OSError(f"{path}: OpenCV could not write the PNG")
+
+
+def install_file(src: str | Path, dst: str | Path) -> None:
+    """Move a finished file (e.g. Blender's own PNG) into place by renaming (same file system)."""
+    dst = Path(dst)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(src, dst)
+
+
+def write_gt(path: str | Path, gt: dict) -> None:
+    """Ground-truth dict -> compressed npz, atomically."""
+    write_npz(path, compressed=True, **{k: np.asarray(v) for k, v in gt.items()})
+
+
+def write_frame(root: str | Path, eye: str, index: int, rgb_uint8: np.ndarray | None,
+                gt_dict: dict | None) -> FramePaths:
+    """Write one eye of one frame (either part may be None: not written)."""
+    paths = frame_paths(root, eye, index)
+    if gt_dict is not None:
+        write_gt(paths.gt, gt_dict)
+    if rgb_uint8 is not None:
+        write_rgb(paths.rgb, rgb_uint8)
+    return paths
+
+
+def read_frame(root: str | Path, eye: str, index: int, rgb: bool = True) -> tuple[np.ndarray | None, dict]:
+    """(RGB uint8 (H, W, 3) or None, ground-truth dict) of one eye and frame."""
+    paths = frame_paths(root, eye, index)
+    image = None
+    if rgb:
+        import cv2
+
+        bgr = cv2.imread(str(paths.rgb), cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise UserError(f"{paths.rgb}: missing or unreadable image")
+        image = bgr[..., ::-1].copy()
+    gt: dict = {}
+    if paths.gt.is_file():
+        with np.load(paths.gt) as data:
+            gt = {k: data[k] for k in data.files}
+    return image, gt
+
+
+def write_dataset_json(root: str | Path, info: dict) -> Path:
+    """Write DATASET/dataset.json atomically; ``info`` must hold :data:`REQUIRED_KEYS`."""
+    missing = [k for k in REQUIRED_KEYS if k not in info]
+    if missing:
+        raise ValueError(f"dataset.json info lacks {', '.join(missing)}")
+    out = {"format": FORMAT}
+    out.update(info)
+    path = Path(root) / DATASET_JSON
+    write_json(path, out)
+    return path
+
+
+def read_dataset_json(root: str | Path) -> dict:
+    path = Path(root) / DATASET_JSON
+    if not path.is_file():
+        raise UserError(f"{path}: not found (not a dataset folder made by 'rgbd2scene render')")
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{path}: not readable JSON ({exc})") from None
+
+
+def remove_temp_files(root: str | Path) -> int:
+    """Remove leftovers of killed runs: atomic writers' ``.NAME.*`` temporaries in the frame folders
+    and the render's scratch folder. Returns the number of files removed."""
+    root = Path(root)
+    count = 0
+    for eye in EYES:
+        for kind in ("rgb", "gt"):
+            folder = root / eye / kind
+            if folder.is_dir():
+                for p in folder.glob(".*"):
+                    if p.is_file():
+                        p.unlink(missing_ok=True)
+                        count += 1
+    for p in root.glob(f".{Path(DATASET_JSON).stem}.*"):
+        p.unlink(missing_ok=True)
+        count += 1
+    work = root / WORK_DIR
+    if work.is_dir():
+        for p in work.iterdir():
+            if p.is_file():
+                p.unlink(missing_ok=True)
+                count += 1
+        try:
+            work.rmdir()
+        except OSError:
+            pass
+    return count

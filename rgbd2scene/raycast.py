@@ -1,0 +1,181 @@
+"""Exact per-pixel depth, normals and triangle ids of a mesh by ray casting (Open3D ``RaycastingScene``).
+
+Rays go through the pixel *centres* of this project's convention (``conventions.pixel_rays``: the
+centre of integer pixel (u, v) is at (u, v)), not through Open3D's ``create_rays_pinhole``, which
+shoots through (u + 0.5 - cx) / fx. Ray directions have unit camera z, so the hit distance Open3D
+returns (in units of the direction's length) is the planar depth itself.
+
+Used by the path generators (standoff, view coverage), ``verify`` (independent ground truth) and the
+scene overview.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .conventions import orient_normals_to_camera, pixel_rays
+
+_INVALID = np.uint32(0xFFFFFFFF)
+
+
+def angle_weighted_vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit vertex normals weighted by each face's corner angle (as Blender's smooth shading).
+
+    Face normals follow the triangle winding (right-handed). Vertices without faces get NaN.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    p0, p1, p2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    fn = np.cross(p1 - p0, p2 - p0)
+    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fn = np.where(fn_len > 0, fn / fn_len, 0.0)
+    normals = np.zeros_like(v)
+    for corner, (a, b, c) in enumerate(((p0, p1, p2), (p1, p2, p0), (p2, p0, p1))):
+        e1, e2 = b - a, c - a
+        n1, n2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cos = np.clip(np.sum(e1 * e2, axis=1) / (n1 * n2), -1.0, 1.0)
+        weighted = fn * np.nan_to_num(np.arccos(cos))[:, None]
+        for axis in range(3):  # bincount: much faster than np.add.at
+            normals[:, axis] += np.bincount(t[:, corner], weighted[:, axis], minlength=len(v))
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(length > 0, normals / length, np.nan)
+
+
+class Raycaster:
+    """A triangle mesh ready for ray casting; see :func:`raycaster`."""
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray):
+        import open3d as o3d  # imported here: the CLI starts faster without it
+
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+        self.triangles = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
+        if self.triangles.size and (self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices)):
+            raise ValueError("triangle indices out of range of the vertex array")
+        self._o3d = o3d
+        self._scene = o3d.t.geometry.RaycastingScene()
+        if len(self.triangles):
+            self._scene.add_triangles(
+                o3d.core.Tensor(self.vertices.astype(np.float32)),
+                o3d.core.Tensor(self.triangles.astype(np.uint32)),
+            )
+        self._vertex_normals: np.ndarray | None = None
+        self._ray_cache: dict = {}
+
+    @property
+    def vertex_normals(self) -> np.ndarray:
+        """Angle-weighted unit vertex normals (computed once)."""
+        if self._vertex_normals is None:
+            self._vertex_normals = angle_weighted_vertex_normals(self.vertices, self.triangles)
+        return self._vertex_normals
+
+    def cast_rays(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:
+        """First hits of rays (..., 3) in world coordinates.
+
+        Returns ``t`` (float64, units of each direction's length, NaN on a miss), ``triangle_ids``
+        (int64, -1 on a miss), ``uvs`` (barycentric (u, v): point = (1-u-v) p0 + u p1 + v p2) and
+        ``face_normals`` (unit, triangle winding; NaN on a miss).
+        """
+        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
+        rays = np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
+        shape = rays.shape[:-1]
+        if rays.size == 0 or not len(self.triangles):
+            return {"t": np.full(shape, np.nan), "triangle_ids": np.full(shape, -1, np.int64),
+                    "uvs": np.full(shape + (2,), np.nan), "face_normals": np.full(shape + (3,), np.nan)}
+        out = self._scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays.reshape(-1, 6))))
+        t = out["t_hit"].numpy().astype(np.float64).reshape(shape)
+        prim = out["primitive_ids"].numpy().reshape(shape)
+        hit = (prim != _INVALID) & np.isfinite(t)
+        t[~hit] = np.nan
+        ids = np.where(hit, prim.astype(np.int64), -1)
+        uvs = out["primitive_uvs"].numpy().astype(np.float64).reshape(shape + (2,))
+        uvs[~hit] = np.nan
+        fn = out["primitive_normals"].numpy().astype(np.float64).reshape(shape + (3,))
+        fn[~hit] = np.nan
+        return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn}
+
+    def smooth_normals(self, triangle_ids: np.ndarray, uvs: np.ndarray) -> np.ndarray:
+        """Interpolated (then normalised) angle-weighted vertex normals at hits, world frame.
+
+        This is the normal a smooth-shaded mesh shows (Blender/Cycles); NaN where ``triangle_ids`` < 0.
+        """
+        ids = np.asarray(triangle_ids)
+        hit = ids >= 0
+        out = np.full(ids.shape + (3,), np.nan)
+        if not hit.any():
+            return out
+        tri = self.triangles[ids[hit]]
+        vn = self.vertex_normals
+        u, v = uvs[hit][:, 0:1], uvs[hit][:, 1:2]
+        n = (1.0 - u - v) * vn[tri[:, 0]] + u * vn[tri[:, 1]] + v * vn[tri[:, 2]]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n /= np.linalg.norm(n, axis=1, keepdims=True)
+        out[hit] = n
+        return out
+
+    def _rays_cam(self, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        key = (int(width), int(height), tuple(np.asarray(K, dtype=np.float64).ravel()))
+        rays = self._ray_cache.get(key)
+        if rays is None:
+            if len(self._ray_cache) > 8:
+                self._ray_cache.clear()
+            rays = pixel_rays(int(height), int(width), np.asarray(K, dtype=np.float64))
+            self._ray_cache[key] = rays
+        return rays
+
+    def cast(self, K: np.ndarray, width: int, height: int, T_world_cam: np.ndarray,
+             normals: str = "face", with_uvs: bool = False) -> dict[str, np.ndarray]:
+        """Render the mesh from a pinhole camera through this project's pixel centres.
+
+        Parameters
+        ----------
+        K : (3, 3) OpenCV intrinsics; width, height : image size in pixels.
+        T_world_cam : (4, 4) camera-to-world pose (OpenCV axes).
+        normals : ``"face"`` (geometric triangle normals), ``"smooth"`` (interpolated angle-weighted
+            vertex normals, what a smooth-shaded render shows) or ``"none"``.
+
+        Returns
+        -------
+        dict with ``depth`` (H, W) float32 planar z (NaN on a miss), ``normals_cam`` (H, W, 3) float32
+        unit normals in the camera frame facing the camera (n . ray < 0; NaN on a miss; absent for
+        ``normals="none"``; with ``"smooth"`` the face normals come too, as ``face_normals_cam``),
+        ``triangle_ids`` (H, W) int64 (-1 on a miss) and, with ``with_uvs``,
+        ``uvs`` (H, W, 2) barycentric coordinates of the hits.
+        """
+        T = np.asarray(T_world_cam, dtype=np.float64)
+        R, c = T[:3, :3], T[:3, 3]
+        rays_cam = self._rays_cam(K, width, height)  # unit z: t_hit is planar depth
+        hit = self.cast_rays(c, rays_cam @ R.T)
+        result = {"depth": hit["t"].astype(np.float32), "triangle_ids": hit["triangle_ids"]}
+        if normals != "none":
+            face_cam = hit["face_normals"] @ R  # world -> camera: R^T n, row-wise
+            face_dot = np.sum(face_cam * rays_cam, axis=-1, keepdims=True)
+            side = np.where(face_dot > 0, -1.0, 1.0)  # which side of the triangle the camera sees
+            if normals == "face":
+                n = face_cam * side
+            elif normals == "smooth":
+                n = self.smooth_normals(hit["triangle_ids"], hit["uvs"]) @ R * side
+                n = orient_normals_to_camera(n, rays_cam)
+                result["face_normals_cam"] = (face_cam * side).astype(np.float32)
+            else:
+                raise ValueError(f"normals must be 'face', 'smooth' or 'none', not {normals!r}")
+            result["normals_cam"] = n.astype(np.float32)
+        if with_uvs:
+            result["uvs"] = hit["uvs"]
+        return result
+
+    def centre_depth(self, T_world_cam: np.ndarray) -> np.ndarray | float:
+        """Planar depth of the surface on the optical axis (the principal point; NaN on a miss).
+
+        ``T_world_cam`` is one pose (4, 4), giving a float, or a stack (F, 4, 4), giving an array (F,).
+        """
+        T = np.asarray(T_world_cam, dtype=np.float64)
+        t = self.cast_rays(T[..., :3, 3], T[..., :3, 2])["t"]
+        return float(t) if T.ndim == 2 else t
+
+
+def raycaster(vertices: np.ndarray, triangles: np.ndarray) -> Raycaster:
+    """Wrap a triangle mesh (vertices (N, 3) metres, triangles (M, 3) indices) for ray casting."""
+    return Raycaster(vertices, triangles)

@@ -1,0 +1,782 @@
+"""Self-consistency checks of a rendered stereo dataset (``rgbd2scene verify DATASET``).
+
+Each check is independent and compares the ground truth on disk (CONVENTIONS.md sections 3-4) with an
+independent computation:
+
+- ``schema``: keys, dtypes and shapes of every npz, NaN (never a sentinel) where there is no surface,
+  unit normals facing the camera, positive disparity, K and the rig (right = left + baseline along x).
+- ``depth``: against ray casting the scene mesh at the recorded K and pose (median / p99 error over
+  pixels valid in both, and the valid masks, allowing a thin band of mismatch at silhouettes).
+- ``normals``: against the mesh's interpolated angle-weighted vertex normals at the ray-cast hits (what
+  a smooth-shaded render shows); the angle to the face normal is reported for information.
+- ``disparity``: equals fx*B/z.
+- ``flow_fwd`` / ``flow_bwd``: against reprojecting depth with K and the poses of the next / previous
+  frame (static objects), and NaN on the last / first frame.
+- ``stereo``: left/right depth agree through the disparity (left (u, v) sees what right (u - d, v) sees)
+  wherever the other eye is not occluded.
+- ``coverage``: fraction of pixels with surface (a warning, not a failure, below 95 %).
+
+``verify_dataset`` returns a :class:`VerifyReport` (``report.ok``); ``format_report`` prints it.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .conventions import backproject, flow_between_cameras, invert_pose, pixel_rays, project, transform_points
+from .errors import UserError
+
+EYES = ("left", "right")
+CHECKS = ("schema", "coverage", "depth", "normals", "disparity", "flow_fwd", "flow_bwd", "stereo", "occlusion")
+
+#: key -> (dtype, shape with H/W/N placeholders)
+SCHEMA = {
+    "depth": ("float32", ("H", "W")),
+    "disparity": ("float32", ("H", "W")),
+    "normals": ("float32", ("H", "W", 3)),
+    "flow_forward": ("float32", ("H", "W", 2)),
+    "flow_backward": ("float32", ("H", "W", 2)),
+    "segmentation": ("uint16", ("H", "W")),
+    "K": ("float64", (3, 3)),
+    "T_world_cam": ("float64", (4, 4)),
+    "object_ids": ("uint16", ("N",)),
+    "object_poses": ("float64", ("N", 4, 4)),
+}
+OPTIONAL = {"occluded_forward": ("bool", ("H", "W")), "occluded_backward": ("bool", ("H", "W"))}
+
+
+@dataclass
+class Tolerances:
+    """Pass limits of every check (lengths in mm, angles in degrees, flow and disparity in pixels)."""
+
+    depth_median_mm: float = 0.01
+    depth_p99_mm: float = 0.1
+    mask_mismatch: float = 0.001  # fraction of pixels valid in one, not the other, outside the band
+    mask_band_px: int = 1  # silhouette band where the valid masks may disagree
+    depth_shift_px: float = 0.02  # sub-pixel image shift that best explains depth - ray cast (K, pixel centres)
+    normal_median_deg: float = 0.1
+    normal_p99_deg: float = 1.0
+    disparity_rel: float = 1e-5
+    flow_median_px: float = 0.01
+    flow_p99_px: float = 0.1
+    flow_missing: float = 0.0  # fraction of surface pixels without flow (not on the first/last frame)
+    lr_threshold_px: float = 0.02  # disparity difference that counts as a disagreement
+    lr_jump_px: float = 1.0  # neighbours further apart than this straddle an edge: not compared
+    lr_inconsistent: float = 0.002  # fraction of compared pixels where the other eye sees further
+    lr_median_px: float = 0.005
+    occlusion_rel: float = 0.01  # relative depth difference that separates visible from hidden
+    occlusion_disagree: float = 0.01  # fraction of surface pixels where occluded_* contradicts the geometry
+    coverage_warn: float = 0.95
+    normal_unit: float = 1e-3
+    normal_facing: float = 1e-3  # fraction of pixels whose normal faces away from the camera
+    pose_m: float = 1e-6
+    K_abs: float = 1e-6
+
+
+@dataclass
+class CheckResult:
+    """One row of the report: a metric of a check for one eye, aggregated (worst) over frames."""
+
+    check: str
+    eye: str
+    metric: str
+    value: float
+    tolerance: float | None
+    status: str  # pass, fail, warn, info, skip
+    frames: int = 0
+    worst_frame: int | None = None
+    unit: str = ""
+    note: str = ""
+
+
+@dataclass
+class VerifyReport:
+    dataset: str
+    width: int
+    height: int
+    frames: int
+    mesh: str | None
+    results: list[CheckResult] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    seconds_per_frame: float = float("nan")
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return all(r.status != "fail" for r in self.results) and bool(self.results)
+
+    @property
+    def failed(self) -> list[CheckResult]:
+        return [r for r in self.results if r.status == "fail"]
+
+    def status_of(self, check: str) -> str:
+        """Worst status of one check over its rows: fail > warn > pass > info > skip."""
+        order = ["skip", "info", "pass", "warn", "fail"]
+        rows = [r.status for r in self.results if r.check == check]
+        return max(rows, key=order.index) if rows else "absent"
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["ok"] = self.ok
+        return d
+
+
+class _Metric:
+    """Per-frame values of one metric; the worst one decides."""
+
+    def __init__(self, tol: float | None, worst: str = "max", unit: str = "", warn_only: bool = False,
+                 note: str = ""):
+        self.tol, self.worst, self.unit, self.warn_only, self.note = tol, worst, unit, warn_only, note
+        self.values: list[tuple[int, float]] = []
+
+    def add(self, frame: int, value: float) -> None:
+        if value is not None and np.isfinite(value):
+            self.values.append((frame, float(value)))
+
+
+class _Collector:
+    def __init__(self):
+        self.metrics: dict[tuple[str, str, str], _Metric] = {}
+        self.skips: dict[tuple[str, str], str] = {}
+
+    def metric(self, check: str, eye: str, name: str, tol, worst="max", unit="", warn_only=False, note=""):
+        key = (check, eye, name)
+        if key not in self.metrics:
+            self.metrics[key] = _Metric(tol, worst, unit, warn_only, note)
+        return self.metrics[key]
+
+    def add(self, check, eye, name, frame, value, tol, worst="max", unit="", warn_only=False, note=""):
+        self.metric(check, eye, name, tol, worst, unit, warn_only, note).add(frame, value)
+
+    def results(self) -> list[CheckResult]:
+        out = []
+        for (check, eye, name), m in self.metrics.items():
+            if not m.values:
+                out.append(CheckResult(check, eye, name, float("nan"), m.tol, "skip", 0, None, m.unit,
+                                       m.note or "no pixels to compare"))
+                continue
+            frames, vals = zip(*m.values, strict=True)
+            i = int(np.argmin(vals) if m.worst == "min" else np.argmax(vals))
+            value = vals[i]
+            if m.tol is None:
+                status = "info"
+            else:
+                bad = value < m.tol if m.worst == "min" else value > m.tol
+                status = ("warn" if m.warn_only else "fail") if bad else "pass"
+            out.append(CheckResult(check, eye, name, value, m.tol, status, len(vals), frames[i], m.unit,
+                                   m.note))
+        for (check, eye), reason in self.skips.items():
+            out.append(CheckResult(check, eye, "-", float("nan"), None, "skip", 0, None, "", reason))
+        checks, eyes = list(CHECKS), ["left", "right", "both", "L->R", "R->L"]
+        out.sort(key=lambda r: (checks.index(r.check) if r.check in checks else len(checks),
+                                eyes.index(r.eye) if r.eye in eyes else len(eyes)))
+        return out
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+
+
+def _object_table(meta: dict) -> dict[int, dict]:
+    """dataset.json's object table as {id: {"name", "class", "moving", ...}} (list or dict form)."""
+    table = meta.get("objects") or {}
+    out: dict[int, dict] = {}
+    items = table.items() if isinstance(table, dict) else enumerate(table) if isinstance(table, list) else []
+    for key, entry in items:
+        try:
+            if isinstance(entry, dict):
+                oid = int(entry.get("id", key))
+                out[oid] = dict(entry)
+            else:
+                out[int(key)] = {"name": str(entry)}
+        except (TypeError, ValueError):
+            continue
+    return out
+
+
+def _silhouette_band(mask: np.ndarray, band: int) -> np.ndarray:
+    """Pixels within ``band`` pixels of a boundary of ``mask`` (either side)."""
+    from scipy import ndimage
+
+    if band <= 0:
+        return np.zeros_like(mask)
+    st = np.ones((2 * band + 1, 2 * band + 1), bool)
+    return ndimage.binary_dilation(mask, st) & ~ndimage.binary_erosion(mask, st, border_value=1)
+
+
+def _stats(err: np.ndarray) -> tuple[float, float]:
+    if err.size == 0:
+        return float("nan"), float("nan")
+    return float(np.median(err)), float(np.percentile(err, 99))
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0)))
+
+
+def _image_shift(depth: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
+    """Length (px) of the image shift (du, dv) that best explains depth - ref by ref's gradient.
+
+    A half-pixel convention slip or a wrong principal point shows up here even where the depth
+    errors themselves are tiny (gentle slopes). NaN when the surface has too little slope to tell.
+    """
+    gv, gu = np.gradient(ref)
+    diff = depth - ref
+    ok = mask & np.isfinite(gu) & np.isfinite(gv) & np.isfinite(diff)
+    if ok.sum() < 16:
+        return float("nan")
+    g = np.stack([gu[ok], gv[ok]], axis=-1)
+    d = diff[ok]
+    mag = np.linalg.norm(g, axis=-1)
+    keep = mag <= 10.0 * np.median(mag) + 1e-12  # leave out depth edges
+    g, d = g[keep], d[keep]
+    A = g.T @ g
+    w = np.linalg.eigvalsh(A)
+    scale = float(np.median(np.abs(ref[ok]))) * 1e-6  # slope (m/px) too small to resolve a shift
+    if w[0] <= (scale**2) * len(d):
+        return float("nan")
+    # depth(p) = ref(p + shift)  =>  depth - ref = g . shift
+    shift = np.linalg.solve(A, g.T @ d)
+    return float(np.linalg.norm(shift))
+
+
+def _lr_consistency(z_src: np.ndarray, z_dst: np.ndarray, fx: float, baseline: float, sign: float,
+                    tol: Tolerances) -> tuple[float, float, float, int]:
+    """Compare source depth with the other eye's depth sampled where the disparity sends each pixel.
+
+    ``sign`` = -1 for left -> right (u - d), +1 for right -> left (u + d). Returns (fraction of compared
+    pixels where the other eye sees further than this eye's surface by more than the threshold, median
+    |disparity difference| over non-occluded compared pixels, occluded fraction, compared count).
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d_src = np.where(z_src > 0, fx * baseline / z_src.astype(np.float64), np.nan)
+        d_dst = np.where(z_dst > 0, fx * baseline / z_dst.astype(np.float64), np.nan)
+    h, w = z_src.shape
+    u = np.arange(w, dtype=np.float64)[None, :] + sign * d_src
+    ok = np.isfinite(u) & (u >= 0) & (u <= w - 1)
+    u0 = np.clip(np.floor(np.where(ok, u, 0)).astype(np.int64), 0, w - 1)
+    u1 = np.minimum(u0 + 1, w - 1)
+    a = np.where(ok, u, 0) - u0
+    rows = np.broadcast_to(np.arange(h)[:, None], (h, w))
+    g0, g1 = d_dst[rows, u0], d_dst[rows, u1]
+    with np.errstate(invalid="ignore"):
+        ok &= np.isfinite(g0) & np.isfinite(g1) & (np.abs(g0 - g1) <= tol.lr_jump_px)
+    n = int(ok.sum())
+    if n == 0:
+        return float("nan"), float("nan"), float("nan"), 0
+    diff = ((1 - a) * g0 + a * g1 - d_src)[ok]  # > 0: the other eye sees something closer (occlusion)
+    occluded = diff > tol.lr_threshold_px
+    further = diff < -tol.lr_threshold_px
+    visible = np.abs(diff[~occluded])
+    return (float(further.sum() / n), float(np.median(visible)) if visible.size else float("nan"),
+            float(occluded.sum() / n), n)
+
+
+def _load_npz(path: Path) -> dict | None:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except Exception:  # noqa: BLE001 - any unreadable file is reported, not raised
+        return None
+
+
+def _read_mesh(path: Path):
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(str(path))
+    v, t = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles, dtype=np.int64)
+    return v, t
+
+
+def _resolve_mesh(dataset_dir: Path, meta: dict, mesh_path) -> tuple[Path | None, str]:
+    if mesh_path is not None:
+        p = Path(mesh_path)
+        if not p.is_file():
+            raise UserError(f"{p}: mesh file not found")
+        return p, ""
+    scene = meta.get("scene") or {}
+    candidates = []
+    if isinstance(scene, dict):
+        if scene.get("mesh"):
+            candidates.append(Path(scene["mesh"]))
+        if scene.get("dir"):
+            candidates.append(Path(scene["dir"]) / "mesh.ply")
+    for c in list(candidates):
+        if not c.is_absolute():
+            candidates.append(dataset_dir / c)
+    for c in candidates:
+        if c.is_file():
+            return c, ""
+    if not candidates:
+        return None, "dataset.json names no scene mesh (scene.mesh); pass the mesh path"
+    return None, f"scene mesh not found ({', '.join(str(c) for c in candidates)})"
+
+
+# ------------------------------------------------------------------------------------------------ checks
+
+
+def _check_schema(col: _Collector, problems: list, eye: str, f: int, gt: dict, meta_K, H: int, W: int,
+                  tol: Tolerances, rays: np.ndarray, last: int) -> bool:
+    """Keys, dtypes, shapes, NaN masks, sentinels, unit normals facing the camera. Returns usable."""
+    issues = []
+    bad_keys = set()
+    n_obj = None
+    for key, (dtype, shape) in list(SCHEMA.items()) + list(OPTIONAL.items()):
+        if key not in gt:
+            if key in SCHEMA:
+                issues.append(f"missing key {key}")
+                bad_keys.add(key)
+            continue
+        a = gt[key]
+        if key == "object_ids" and a.ndim == 1:
+            n_obj = a.shape[0]
+        sizes = {"H": H, "W": W, "N": n_obj if n_obj is not None else a.shape[0]}
+        want = tuple(sizes.get(s, s) for s in shape)
+        if str(a.dtype) != dtype:
+            issues.append(f"{key} is {a.dtype}, not {dtype}")
+            if not np.issubdtype(a.dtype, np.number):
+                bad_keys.add(key)
+        if a.shape != want:
+            issues.append(f"{key} has shape {a.shape}, not {want}")
+            bad_keys.add(key)
+    usable = not bad_keys & {"depth", "K", "T_world_cam"}
+    if usable:
+        depth = gt["depth"].astype(np.float64)
+        valid = np.isfinite(depth)
+        sentinels = 0
+        with np.errstate(invalid="ignore"):
+            sentinels += int(np.sum(valid & ((depth <= 0) | (depth >= 1e9))))
+        sentinels += int(np.isinf(depth).sum())
+        if sentinels:
+            issues.append(f"depth has {sentinels} sentinel/inf values (0, negative, >= 1e9): use NaN")
+        surface = valid & (depth > 0) & (depth < 1e9)
+        mism = []
+        for key in ("disparity", "normals", "flow_forward", "flow_backward"):
+            a = gt.get(key)
+            if a is None or a.shape[:2] != (H, W) or not np.issubdtype(a.dtype, np.floating):
+                continue
+            fin = np.all(np.isfinite(a), axis=-1) if a.ndim == 3 else np.isfinite(a)
+            any_nan = np.any(np.isnan(a), axis=-1) if a.ndim == 3 else np.isnan(a)
+            n_inf = int(np.isinf(a).sum())
+            if n_inf:
+                issues.append(f"{key} has {n_inf} infinite values")
+            if (key == "flow_forward" and f == last) or (key == "flow_backward" and f == 0):
+                if fin.any():
+                    issues.append(f"{key} must be NaN on the {'last' if f == last else 'first'} frame "
+                                  f"({int(fin.sum())} finite pixels)")
+                continue
+            if key in ("flow_forward", "flow_backward"):
+                stray = fin & ~surface  # flow may be missing on surface (reported by the flow check)
+                mism.append(stray.mean())
+                if stray.any():
+                    issues.append(f"{key} has values on {int(stray.sum())} pixels without surface")
+                continue
+            bad = fin != surface
+            partial = any_nan & fin if a.ndim == 3 else np.zeros_like(fin)
+            mism.append((bad | partial).mean())
+            if bad.any():
+                issues.append(f"{key}: NaN mask differs from depth's on {int(bad.sum())} pixels")
+            if key == "disparity":
+                with np.errstate(invalid="ignore"):
+                    nonpos = int(np.sum(fin & (a <= 0)))
+                if nonpos:
+                    issues.append(f"disparity is not positive on {nonpos} pixels")
+                    sentinels += nonpos
+            if key == "normals":
+                both = fin & surface
+                if both.any():
+                    n = a[both].astype(np.float64)
+                    length = np.linalg.norm(n, axis=-1)
+                    col.add("schema", eye, "normals |n|-1 (max)", f, float(np.max(np.abs(length - 1))),
+                            tol.normal_unit)
+                    zero = int(np.sum(length < 1e-6))
+                    if zero:
+                        issues.append(f"normals are zero on {zero} pixels: use NaN where there is no surface")
+                        sentinels += zero
+                    facing = np.sum(n * rays[both], axis=-1) >= 0
+                    col.add("schema", eye, "normals not facing camera (frac)", f,
+                            float(facing.mean()), tol.normal_facing)
+        seg = gt.get("segmentation")
+        if seg is not None and seg.shape == (H, W):
+            bad = (seg != 0) != surface
+            mism.append(bad.mean())
+            if bad.any():
+                issues.append(f"segmentation: nonzero ids differ from the depth's surface on "
+                              f"{int(bad.sum())} px")
+        col.add("schema", eye, "NaN/id mask mismatch (frac)", f, max(mism) if mism else 0.0, 0.0)
+        col.add("schema", eye, "sentinel values (count)", f, float(sentinels), 0.0)
+        K = gt["K"]
+        if meta_K is not None:
+            col.add("schema", eye, "K vs dataset.json (max abs)", f, float(np.max(np.abs(K - meta_K))),
+                    tol.K_abs)
+        T = gt["T_world_cam"]
+        R = T[:3, :3]
+        rigid = float(max(np.max(np.abs(R.T @ R - np.eye(3))), abs(np.linalg.det(R) - 1),
+                          np.max(np.abs(T[3] - [0, 0, 0, 1]))))
+        col.add("schema", eye, "T_world_cam rigidity error", f, rigid, 1e-5)
+    col.add("schema", eye, "files with issues", f, float(bool(issues)), 0.0)
+    for s in issues[:8]:
+        problems.append(f"frame {f:06d} {eye}: {s}")
+    return usable
+
+
+def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = None, *,
+                   progress: bool = True, frames=None, normals: str = "smooth",
+                   mesh_ids=None) -> VerifyReport:
+    """Check a dataset folder (CONVENTIONS.md section 4) for self-consistency; see the module docstring.
+
+    Parameters
+    ----------
+    dataset_dir : the dataset folder (with ``dataset.json``).
+    mesh_path : the scene mesh (PLY); default ``dataset.json``'s ``scene.mesh`` (or ``scene.dir``/mesh.ply).
+        Without a mesh the depth and normal checks are skipped (reported as skip).
+    tolerances : pass limits (:class:`Tolerances`).
+    progress : show a tqdm progress bar over frames (stderr).
+    frames : optional iterable of frame numbers to check (default all).
+    normals : ``"smooth"`` (interpolated vertex normals: a smooth-shaded render) or ``"face"``.
+    mesh_ids : segmentation ids of the mesh's surface (default: objects of class "tissue" in the object
+        table, else every id); pixels of other objects, and of moving ones, are left out of the mesh checks.
+    """
+    from tqdm import tqdm
+
+    t_start = time.perf_counter()
+    tol = tolerances or Tolerances()
+    root = Path(dataset_dir)
+    meta_path = root / "dataset.json"
+    if not meta_path.is_file():
+        raise UserError(f"{meta_path}: not found (is {root} a dataset folder?)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{meta_path}: not readable JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise UserError(f"{meta_path}: must hold a JSON object")
+    try:
+        W, H, n_frames = int(meta["width"]), int(meta["height"]), int(meta["frames"])
+        baseline = float(meta["baseline"])
+        meta_K = np.asarray(meta["K"], dtype=np.float64).reshape(3, 3) if "K" in meta else None
+    except KeyError as exc:
+        raise UserError(f"{meta_path}: lacks key {exc.args[0]!r}") from None
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"{meta_path}: bad value ({exc})") from None
+
+    col = _Collector()
+    problems: list[str] = []
+    mesh_file, mesh_reason = _resolve_mesh(root, meta, mesh_path)
+    rc = None
+    if mesh_file is not None:
+        v, t = _read_mesh(mesh_file)
+        if len(t) == 0:
+            mesh_reason = f"{mesh_file}: no triangles"
+        else:
+            from .raycast import raycaster
+
+            rc = raycaster(v, t)
+    if rc is None:
+        for check in ("depth", "normals"):
+            for eye in EYES:
+                col.skips[(check, eye)] = mesh_reason
+
+    table = _object_table(meta)
+    frame_list = sorted(set(range(n_frames) if frames is None else (int(f) for f in frames)))
+    last = n_frames - 1
+
+    # Pass 1: poses and object poses of every frame (cheap: npz members load lazily).
+    poses: dict[tuple[str, int], np.ndarray] = {}
+    obj_poses: dict[int, list[np.ndarray]] = {}
+    for eye in EYES:
+        for f in range(n_frames):
+            p = root / eye / "gt" / f"{f:06d}.npz"
+            try:
+                with np.load(p, allow_pickle=False) as z:
+                    poses[(eye, f)] = np.asarray(z["T_world_cam"], dtype=np.float64)
+                    if eye == "left" and "object_ids" in z.files and "object_poses" in z.files:
+                        for oid, T in zip(z["object_ids"].tolist(), z["object_poses"], strict=False):
+                            obj_poses.setdefault(int(oid), []).append(np.asarray(T, dtype=np.float64))
+            except Exception:  # noqa: BLE001 - reported in the main pass
+                pass
+    moving = {oid for oid, e in table.items() if e.get("moving")}
+    moving |= {oid for oid, Ts in obj_poses.items() if any(np.abs(T - Ts[0]).max() > 1e-9 for T in Ts)}
+    if mesh_ids is None:
+        tissue = {oid for oid, e in table.items() if str(e.get("class", "")).lower() == "tissue"}
+        mesh_ids = tissue or None
+    mesh_ids = None if mesh_ids is None else set(int(i) for i in mesh_ids)
+    notes = []
+    if moving:
+        notes.append(f"moving object ids {sorted(moving)} left out of mesh and flow checks")
+
+    # The main metrics appear in the report even when no pixel could be compared (then as skip).
+    why = "no pixels to compare" + ("; moving objects are left out" if moving else "")
+    for eye in EYES:
+        if rc is not None:
+            col.metric("depth", eye, "median abs error", tol.depth_median_mm, unit="mm", note=why)
+            col.metric("normals", eye, f"median angle vs {normals} normals", tol.normal_median_deg, unit="deg",
+                       note=why)
+        col.metric("disparity", eye, "max rel error vs fx*B/z", tol.disparity_rel, note=why)
+        if n_frames > 1:
+            col.metric("flow_fwd", eye, "median endpoint error", tol.flow_median_px, unit="px", note=why)
+            col.metric("flow_bwd", eye, "median endpoint error", tol.flow_median_px, unit="px", note=why)
+    for pair in ("L->R", "R->L"):
+        col.metric("stereo", pair, "other eye sees further (frac)", tol.lr_inconsistent, note=why)
+    rays = pixel_rays(H, W, meta_K if meta_K is not None else np.eye(3))
+    frame_times = []
+    depth_cache: dict[tuple[str, int], np.ndarray | None] = {}
+
+    def neighbour_depth(eye: str, g: int) -> np.ndarray | None:
+        if (eye, g) not in depth_cache:
+            try:
+                with np.load(root / eye / "gt" / f"{g:06d}.npz", allow_pickle=False) as z:
+                    d = z["depth"]
+                depth_cache[(eye, g)] = d if d.shape == (H, W) else None
+            except Exception:  # noqa: BLE001 - the file is reported when its own frame is checked
+                depth_cache[(eye, g)] = None
+        return depth_cache[(eye, g)]
+    for f in tqdm(frame_list, desc="verify", unit="frame", disable=not progress):
+        t_frame = time.perf_counter()
+        gts: dict[str, dict | None] = {}
+        for eye in EYES:
+            gt_path = root / eye / "gt" / f"{f:06d}.npz"
+            rgb_path = root / eye / "rgb" / f"{f:06d}.png"
+            gt = _load_npz(gt_path) if gt_path.is_file() else None
+            if gt is None:
+                problems.append(f"frame {f:06d} {eye}: {'unreadable' if gt_path.is_file() else 'missing'} "
+                                f"{gt_path.relative_to(root)}")
+                col.add("schema", eye, "files with issues", f, 1.0, 0.0)
+                gts[eye] = None
+                continue
+            _check_rgb(col, problems, eye, f, rgb_path, root, H, W)
+            K_eye = gt.get("K") if isinstance(gt.get("K"), np.ndarray) and gt["K"].shape == (3, 3) else meta_K
+            rays_eye = pixel_rays(H, W, K_eye) if K_eye is not None else rays
+            ok = _check_schema(col, problems, eye, f, gt, meta_K, H, W, tol, rays_eye, last)
+            gts[eye] = gt if ok else None
+            if ok:
+                depth_cache[(eye, f)] = gt["depth"]
+        for key in [k for k in depth_cache if k[1] < f - 1]:
+            del depth_cache[key]
+        for eye in EYES:
+            gt = gts[eye]
+            if gt is None:
+                continue
+            _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol, rc, normals, mesh_ids, moving,
+                          neighbour_depth)
+        if gts["left"] is not None and gts["right"] is not None:
+            Tl, Tr = gts["left"]["T_world_cam"], gts["right"]["T_world_cam"]
+            T_lr = invert_pose(Tl) @ Tr
+            expect = np.eye(4)
+            expect[0, 3] = baseline
+            col.add("schema", "both", "right pose vs left + baseline (max abs)", f,
+                    float(np.max(np.abs(T_lr - expect))), tol.pose_m)
+            col.add("schema", "both", "K left vs right (max abs)", f,
+                    float(np.max(np.abs(gts["left"]["K"] - gts["right"]["K"]))), tol.K_abs)
+            fx = float(gts["left"]["K"][0, 0])
+            zl, zr = gts["left"]["depth"], gts["right"]["depth"]
+            for eye, (a, b, sign) in (("L->R", (zl, zr, -1.0)), ("R->L", (zr, zl, 1.0))):
+                further, med, occ, n = _lr_consistency(a, b, fx, baseline, sign, tol)
+                if n:
+                    col.add("stereo", eye, "other eye sees further (frac)", f, further, tol.lr_inconsistent)
+                    col.add("stereo", eye, "median |disparity diff|", f, med, tol.lr_median_px, unit="px")
+                    col.add("stereo", eye, "occluded in other eye (frac)", f, occ, None)
+        frame_times.append(time.perf_counter() - t_frame)
+
+    return VerifyReport(str(root), W, H, n_frames, str(mesh_file) if mesh_file else None,
+                        col.results(), problems, time.perf_counter() - t_start,
+                        float(np.mean(frame_times)) if frame_times else float("nan"), notes)
+
+
+def _check_rgb(col, problems, eye, f, rgb_path: Path, root: Path, H: int, W: int) -> None:
+    import cv2
+
+    img = cv2.imread(str(rgb_path), cv2.IMREAD_UNCHANGED) if rgb_path.is_file() else None
+    issue = None
+    if img is None:
+        issue = f"{'unreadable' if rgb_path.is_file() else 'missing'} {rgb_path.relative_to(root)}"
+    elif img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] not in (3, 4):
+        issue = f"{rgb_path.relative_to(root)} is not 8-bit RGB ({img.dtype}, shape {img.shape})"
+    elif img.shape[:2] != (H, W):
+        issue = f"{rgb_path.relative_to(root)} is {img.shape[1]}x{img.shape[0]}, not {W}x{H}"
+    col.add("schema", eye, "rgb png issues", f, float(issue is not None), 0.0)
+    if issue:
+        problems.append(f"frame {f:06d} {eye}: {issue}")
+
+
+def _occlusion_reference(depth, K, T_a, T_b, depth_b, rel: float):
+    """Pixels of camera a whose surface point is clearly visible / clearly hidden (or outside) in b."""
+    h, w = depth.shape
+    surface = np.isfinite(depth)
+    pts = transform_points(invert_pose(T_b) @ T_a, backproject(depth, K))
+    z = pts[..., 2]
+    u, v = project(pts, K)
+    with np.errstate(invalid="ignore"):
+        outside = surface & ~((u >= -0.5) & (u < w - 0.5) & (v >= -0.5) & (v < h - 0.5))
+    inside = surface & ~outside
+    u0 = np.clip(np.floor(np.nan_to_num(u)), 0, w - 2).astype(np.int64) if w > 1 else np.zeros((h, w), int)
+    v0 = np.clip(np.floor(np.nan_to_num(v)), 0, h - 2).astype(np.int64) if h > 1 else np.zeros((h, w), int)
+    zs = np.stack([depth_b[np.minimum(v0 + dv, h - 1), np.minimum(u0 + du, w - 1)]
+                   for dv in (0, 1) for du in (0, 1)], axis=-1).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        close = np.any(np.abs(zs - z[..., None]) <= rel * z[..., None], axis=-1)
+        hidden = np.all(zs < (z * (1 - rel))[..., None], axis=-1)  # NaN compares False: not hidden
+    return inside & close, outside | (inside & hidden & ~close)
+
+
+def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances, rc, normals_mode,
+                  mesh_ids, moving, neighbour_depth) -> None:
+    K, T = gt["K"], gt["T_world_cam"]
+    depth = gt["depth"].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        surface = np.isfinite(depth) & (depth > 0) & (depth < 1e9)
+    seg = gt.get("segmentation")
+    seg = seg if seg is not None and seg.shape == (H, W) else np.zeros((H, W), np.uint16)
+    static = ~np.isin(seg, list(moving)) if moving else np.ones((H, W), bool)
+
+    # (f) coverage
+    col.add("coverage", eye, "valid pixels (min frac)", f, float(surface.mean()), tol.coverage_warn,
+            worst="min", warn_only=True)
+
+    # (c) disparity
+    disp = gt.get("disparity")
+    if disp is not None and disp.shape == (H, W):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            expect = K[0, 0] * baseline / depth
+        both = surface & np.isfinite(disp)
+        if both.any():
+            rel = np.abs(disp[both].astype(np.float64) - expect[both]) / expect[both]
+            col.add("disparity", eye, "max rel error vs fx*B/z", f, float(rel.max()), tol.disparity_rel)
+
+    # (d) flow, static surface only
+    for key, check, g in (("flow_forward", "flow_fwd", f + 1), ("flow_backward", "flow_bwd", f - 1)):
+        flow = gt.get(key)
+        if flow is None or flow.shape != (H, W, 2) or g < 0 or g > last or (eye, g) not in poses:
+            continue
+        ref = flow_between_cameras(np.where(surface, depth, np.nan), K, T, poses[(eye, g)]).astype(np.float64)
+        ref_ok = np.all(np.isfinite(ref), axis=-1) & surface & static
+        have = np.all(np.isfinite(flow), axis=-1)
+        both = ref_ok & have
+        if both.any():
+            epe = np.linalg.norm(flow[both].astype(np.float64) - ref[both], axis=-1)
+            med, p99 = _stats(epe)
+            col.add(check, eye, "median endpoint error", f, med, tol.flow_median_px, unit="px")
+            col.add(check, eye, "p99 endpoint error", f, p99, tol.flow_p99_px, unit="px")
+        if ref_ok.any():
+            col.add(check, eye, "surface pixels without flow (frac)", f,
+                    float((ref_ok & ~have).sum() / ref_ok.sum()), tol.flow_missing)
+        occ_key = "occluded_forward" if key == "flow_forward" else "occluded_backward"
+        occ = gt.get(occ_key)
+        depth_g = neighbour_depth(eye, g)
+        if occ is not None and occ.shape == (H, W) and depth_g is not None:
+            visible, hidden = _occlusion_reference(np.where(surface, depth, np.nan), K, T, poses[(eye, g)],
+                                                   depth_g, tol.occlusion_rel)
+            occ = occ.astype(bool)
+            wrong = ((occ & visible) | (~occ & hidden)) & static
+            if surface.any():
+                col.add("occlusion", eye, f"{occ_key} contradicting geometry (frac)", f,
+                        float(wrong.sum() / surface.sum()), tol.occlusion_disagree)
+    for key, boundary in (("flow_forward", last), ("flow_backward", 0)):
+        flow = gt.get(key)
+        if f == boundary and flow is not None and flow.shape == (H, W, 2):
+            col.add("flow_fwd" if key == "flow_forward" else "flow_bwd", eye,
+                    f"finite values on the {'last' if boundary else 'first'} frame (count)", f,
+                    float(np.isfinite(flow).any(axis=-1).sum()), 0.0)
+
+    # (a), (b) against the mesh
+    if rc is None:
+        return
+    consider = static.copy()
+    if mesh_ids is not None:
+        consider &= np.isin(seg, list(mesh_ids)) | (seg == 0)
+    if not consider.any():
+        return
+    cast = rc.cast(K, W, H, T, normals=normals_mode if normals_mode in ("face", "smooth") else "smooth")
+    ref_depth = cast["depth"].astype(np.float64)
+    ref_ok = np.isfinite(ref_depth)
+    both = surface & ref_ok & consider
+    if both.any():
+        err_mm = np.abs(depth[both] - ref_depth[both]) * 1000.0
+        med, p99 = _stats(err_mm)
+        col.add("depth", eye, "median abs error", f, med, tol.depth_median_mm, unit="mm")
+        col.add("depth", eye, "p99 abs error", f, p99, tol.depth_p99_mm, unit="mm")
+        col.add("depth", eye, "image shift explaining the error", f,
+                _image_shift(depth, ref_depth, both), tol.depth_shift_px, unit="px")
+    mismatch = (surface != ref_ok) & consider
+    band = _silhouette_band(ref_ok, tol.mask_band_px) | _silhouette_band(surface, tol.mask_band_px)
+    col.add("depth", eye, "valid-mask mismatch off silhouettes (frac)", f,
+            float((mismatch & ~band).sum() / consider.size), tol.mask_mismatch)
+    col.add("depth", eye, "valid-mask mismatch incl. silhouettes (frac)", f,
+            float(mismatch.sum() / consider.size), None)
+    normals = gt.get("normals")
+    if normals is not None and normals.shape == (H, W, 3):
+        nb = both & np.all(np.isfinite(normals), axis=-1)
+        if nb.any():
+            n = normals[nb].astype(np.float64)
+            ang = _angle_deg(n, cast["normals_cam"][nb].astype(np.float64))
+            med, p99 = _stats(ang)
+            col.add("normals", eye, f"median angle vs {normals_mode} normals", f, med, tol.normal_median_deg,
+                    unit="deg")
+            col.add("normals", eye, f"p99 angle vs {normals_mode} normals", f, p99, tol.normal_p99_deg,
+                    unit="deg")
+            if "face_normals_cam" in cast:  # diagnostic: a flat-shaded render matches the face normals
+                face_ang = _angle_deg(n, cast["face_normals_cam"][nb].astype(np.float64))
+                col.add("normals", eye, "median angle vs face normals", f, float(np.nanmedian(face_ang)),
+                        None, unit="deg")
+
+
+# ------------------------------------------------------------------------------------------------ report
+
+
+def _fmt(value: float, unit: str) -> str:
+    if value is None or not np.isfinite(value):
+        return "-"
+    if value == 0:
+        s = "0"
+    elif abs(value) >= 1e4 or abs(value) < 1e-3:
+        s = f"{value:.2e}"
+    else:
+        s = f"{value:.4g}"
+    return f"{s} {unit}".strip()
+
+
+def format_report(report: VerifyReport, max_problems: int = 20) -> str:
+    """Plain-text table (check, eye, frames, metric, value, tolerance, result), problems, verdict."""
+    header = ("check", "eye", "frames", "metric", "value", "tolerance", "result")
+    rows = []
+    for r in report.results:
+        worst = f" (worst {r.worst_frame})" if r.frames > 1 else ""
+        frames = f"{r.frames}{worst}" if r.frames else "-"
+        if r.tolerance is None:
+            tol = "-"
+        else:
+            op = ">=" if r.check == "coverage" else "<="
+            tol = f"{op} {_fmt(r.tolerance, r.unit)}"
+        result = r.status.upper() if r.status in ("fail", "warn") else r.status
+        metric = r.metric if not r.note or r.status != "skip" else f"{r.metric} ({r.note})"
+        rows.append((r.check, r.eye, frames, metric, _fmt(r.value, r.unit), tol, result))
+    widths = [max(len(h), *(len(row[i]) for row in rows)) if rows else len(h) for i, h in enumerate(header)]
+    line = "  ".join(f"{{:<{w}}}" for w in widths)
+    out = [f"dataset {report.dataset}: {report.width}x{report.height}, {report.frames} frames; "
+           f"mesh {report.mesh or '(none)'}", line.format(*header), line.format(*("-" * w for w in widths))]
+    out += [line.format(*row) for row in rows]
+    if report.notes:
+        out.append("")
+        out += [f"note: {n}" for n in report.notes]
+    if report.problems:
+        out.append("")
+        out.append(f"problems ({len(report.problems)}):")
+        out += [f"  {p}" for p in report.problems[:max_problems]]
+        if len(report.problems) > max_problems:
+            out.append(f"  ... and {len(report.problems) - max_problems} more")
+    failed = report.failed
+    warns = [r for r in report.results if r.status == "warn"]
+    verdict = "PASS" if report.ok else f"FAIL ({len(failed)} failed: " + ", ".join(
+        sorted({f'{r.check}/{r.eye}' for r in failed})) + ")"
+    if warns:
+        verdict += f"; {len(warns)} warning(s)"
+    out.append("")
+    out.append(f"{verdict}  [{report.seconds:.1f} s]")
+    return "\n".join(out)

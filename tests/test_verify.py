@@ -1,0 +1,210 @@
+"""verify_dataset on a tiny synthetic dataset ray cast from an analytic mesh, and on corrupted copies."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from rgbd2scene.conventions import backproject, disparity_from_depth, flow_between_cameras, transform_points
+from rgbd2scene.path import look_at
+from rgbd2scene.raycast import raycaster
+from rgbd2scene.rig import StereoRig
+from rgbd2scene.verify import Tolerances, format_report, verify_dataset
+
+W, H, FRAMES = 64, 32, 3
+
+
+def bumpy_grid(nx=121, ny=81):
+    """Tilted bumpy height field z(x, y) about 3 cm ahead, triangles facing -z (the camera)."""
+    x, y = np.meshgrid(np.linspace(-0.05, 0.012, nx), np.linspace(-0.035, 0.035, ny))
+    z = 0.03 + 0.4 * x + 0.002 * np.sin(2 * np.pi * x / 0.03) * np.cos(2 * np.pi * y / 0.025)
+    v = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    idx = np.arange(nx * ny).reshape(ny, nx)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    t = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
+    return v, t.astype(np.int32)
+
+
+def occluded_in(rc, depth, K, T, T_other):
+    """Exact occlusion flags: the point leaves the other view, or a ray from the other eye hits earlier."""
+    if T_other is None:
+        return np.zeros(depth.shape, bool)
+    pts = transform_points(T, backproject(depth, K))
+    cam = np.linalg.inv(T_other)
+    q = transform_points(cam, pts)
+    u, v = K[0, 0] * q[..., 0] / q[..., 2] + K[0, 2], K[1, 1] * q[..., 1] / q[..., 2] + K[1, 2]
+    outside = ~((u >= -0.5) & (u < W - 0.5) & (v >= -0.5) & (v < H - 0.5) & (q[..., 2] > 0))
+    hit = rc.cast_rays(T_other[:3, 3], pts - T_other[:3, 3])["t"]
+    return np.isfinite(depth) & (outside | (hit < 1 - 1e-4))
+
+
+def write_dataset(root, vertices, triangles, rig, poses, mesh_file=None):
+    """A dataset in the layout of CONVENTIONS section 4, ground truth by ray casting (smooth normals)."""
+    rc = raycaster(vertices, triangles)
+    K = rig.intrinsics.K
+    eyes = {"left": list(poses), "right": [rig.right_pose(T) for T in poses]}
+    for eye, eye_poses in eyes.items():
+        for f, T in enumerate(eye_poses):
+            cast = rc.cast(K, W, H, T, normals="smooth")
+            depth = cast["depth"]
+            nan2 = np.full((H, W, 2), np.nan, np.float32)
+            fwd = flow_between_cameras(depth, K, T, eye_poses[f + 1]) if f + 1 < len(eye_poses) else nan2
+            bwd = flow_between_cameras(depth, K, T, eye_poses[f - 1]) if f > 0 else nan2
+            gt = {
+                "depth": depth,
+                "disparity": disparity_from_depth(depth, K[0, 0], rig.baseline),
+                "normals": cast["normals_cam"],
+                "flow_forward": fwd.astype(np.float32),
+                "flow_backward": bwd.astype(np.float32),
+                "segmentation": np.isfinite(depth).astype(np.uint16),
+                "K": K.astype(np.float64),
+                "T_world_cam": np.asarray(T, np.float64),
+                "object_ids": np.array([1], np.uint16),
+                "object_poses": np.eye(4)[None],
+                "occluded_forward": occluded_in(rc, depth, K, T, eye_poses[f + 1] if f + 1 < len(poses) else None),
+                "occluded_backward": occluded_in(rc, depth, K, T, eye_poses[f - 1] if f > 0 else None),
+            }
+            (root / eye / "gt").mkdir(parents=True, exist_ok=True)
+            (root / eye / "rgb").mkdir(parents=True, exist_ok=True)
+            np.savez_compressed(root / eye / "gt" / f"{f:06d}.npz", **gt)
+            shade = np.nan_to_num(-cast["normals_cam"][..., 2] * 255).astype(np.uint8)
+            cv2.imwrite(str(root / eye / "rgb" / f"{f:06d}.png"), np.dstack([shade] * 3))
+    meta = {"width": W, "height": H, "frames": len(poses), "fps": 30, "baseline": rig.baseline,
+            "K": K.tolist(), "objects": [{"id": 1, "name": "tissue", "part": "surface", "class": "tissue"}],
+            "scene": {"dir": str(root.parent), "mesh": str(mesh_file) if mesh_file else None}}
+    (root / "dataset.json").write_text(json.dumps(meta))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    import open3d as o3d
+
+    base = tmp_path_factory.mktemp("verify")
+    v, t = bumpy_grid()
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(t))
+    mesh_file = base / "mesh.ply"
+    o3d.io.write_triangle_mesh(str(mesh_file), mesh)
+    rig = StereoRig.endoscope(W, H)
+    # translation plus a turning view, so that camera and world frames differ
+    poses = [look_at([-0.004 + 0.003 * f, 0.001 * f, 0.004], [0.002 * f - 0.003, 0.003, 0.033], [0.2, -1, 0])
+             for f in range(FRAMES)]
+    root = base / "dataset"
+    write_dataset(root, v, t, rig, poses, mesh_file)
+    return root
+
+
+def corrupt(src, dst, eye, key, fn, frames=None):
+    shutil.copytree(src, dst)
+    for f in range(FRAMES) if frames is None else frames:
+        p = dst / eye / "gt" / f"{f:06d}.npz"
+        with np.load(p) as z:
+            gt = {k: z[k] for k in z.files}
+        gt[key] = fn(gt[key]).astype(gt[key].dtype)
+        np.savez_compressed(p, **gt)
+    return dst
+
+
+def test_clean_dataset_passes(dataset):
+    report = verify_dataset(dataset, progress=False)
+    text = format_report(report)
+    assert report.ok, text
+    assert report.mesh is not None and report.mesh.endswith("mesh.ply")
+    for check in ("schema", "depth", "normals", "disparity", "flow_fwd", "flow_bwd", "stereo", "coverage",
+                  "occlusion"):
+        assert report.status_of(check) in ("pass", "warn"), (check, text)
+    assert "PASS" in text and "check" in text.splitlines()[1]
+    depth_rows = [r for r in report.results if r.check == "depth" and r.metric.startswith("median")]
+    assert depth_rows and all(r.value < 1e-4 for r in depth_rows)
+
+
+def test_without_mesh_skips_mesh_checks(dataset, tmp_path):
+    d = shutil.copytree(dataset, tmp_path / "d")
+    meta = json.loads((d / "dataset.json").read_text())
+    meta["scene"] = {"dir": str(tmp_path / "nowhere")}
+    (d / "dataset.json").write_text(json.dumps(meta))
+    report = verify_dataset(d, progress=False)
+    assert report.ok, format_report(report)
+    assert report.status_of("depth") == "skip" and report.status_of("normals") == "skip"
+    assert report.status_of("flow_fwd") == "pass"
+
+
+CORRUPTIONS = {
+    "depth_scaled": ("left", "depth", lambda a: a * 1.01, "depth"),
+    "flow_sign": ("left", "flow_forward", lambda a: -a, "flow_fwd"),
+    "backward_flow_sign": ("right", "flow_backward", lambda a: -a, "flow_bwd"),
+    "disparity_sign": ("left", "disparity", lambda a: -a, "disparity"),
+    "right_depth_shift": ("right", "depth", lambda a: np.roll(a, 1, axis=1), "stereo"),
+    "nan_to_zero": ("left", "depth", lambda a: np.nan_to_num(a, nan=0.0), "schema"),
+    "flow_nan_to_zero": ("left", "flow_forward", lambda a: np.nan_to_num(a, nan=0.0), "schema"),
+    "occlusion_inverted": ("left", "occluded_forward", lambda a: ~a, "occlusion"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CORRUPTIONS))
+def test_corruption_is_caught(dataset, tmp_path, name):
+    eye, key, fn, check = CORRUPTIONS[name]
+    d = corrupt(dataset, tmp_path / name, eye, key, fn)
+    report = verify_dataset(d, progress=False)
+    assert not report.ok
+    assert report.status_of(check) == "fail", format_report(report)
+
+
+def test_world_frame_normals_are_caught(dataset, tmp_path):
+    d = shutil.copytree(dataset, tmp_path / "world_normals")
+    for f in range(FRAMES):
+        p = d / "left" / "gt" / f"{f:06d}.npz"
+        with np.load(p) as z:
+            gt = {k: z[k] for k in z.files}
+        gt["normals"] = (gt["normals"].astype(np.float64) @ gt["T_world_cam"][:3, :3].T).astype(np.float32)
+        np.savez_compressed(p, **gt)
+    report = verify_dataset(d, progress=False)
+    assert report.status_of("normals") == "fail", format_report(report)
+    assert report.status_of("depth") == "pass"
+
+
+def test_mask_holes_and_missing_files(dataset, tmp_path):
+    # depth NaN where the mesh has surface (a hole the renderer should not have) -> depth mask check
+    def hole(a):
+        a = a.copy()
+        a[10:20, 20:40] = np.nan
+        return a
+
+    d = corrupt(dataset, tmp_path / "hole", "left", "depth", hole, frames=[1])
+    report = verify_dataset(d, progress=False)
+    assert report.status_of("depth") == "fail"
+    assert report.status_of("schema") == "fail"  # the other maps still have values there
+    (d / "right" / "gt" / "000002.npz").unlink()
+    report = verify_dataset(d, progress=False)
+    assert any("missing" in p for p in report.problems)
+
+
+def test_tolerances_and_errors(dataset, tmp_path):
+    from rgbd2scene.errors import UserError
+
+    report = verify_dataset(dataset, progress=False, tolerances=Tolerances(depth_median_mm=-1.0))
+    assert report.status_of("depth") == "fail"
+    with pytest.raises(UserError, match="dataset.json"):
+        verify_dataset(tmp_path, progress=False)
+    with pytest.raises(UserError, match="mesh"):
+        verify_dataset(dataset, mesh_path=tmp_path / "absent.ply", progress=False)
+
+
+def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
+    """Depth rendered through (u + 0.5 - cx) / fx (Open3D's create_rays_pinhole) instead of pixel centres."""
+    d = shutil.copytree(dataset, tmp_path / "half_pixel")
+    rc = raycaster(*bumpy_grid())
+    for f in range(FRAMES):
+        p = d / "left" / "gt" / f"{f:06d}.npz"
+        with np.load(p) as z:
+            gt = {k: z[k] for k in z.files}
+        K = gt["K"].copy()
+        K[:2, 2] -= 0.5
+        gt["depth"] = rc.cast(K, W, H, gt["T_world_cam"], normals="none")["depth"]
+        np.savez_compressed(p, **gt)
+    report = verify_dataset(d, progress=False)
+    shift = [r for r in report.results if r.check == "depth" and "shift" in r.metric and r.eye == "left"]
+    assert shift and shift[0].status == "fail" and abs(shift[0].value - np.sqrt(0.5)) < 0.1
