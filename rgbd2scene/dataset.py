@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from .atomic import atomic_path, write_json, write_npz
+from .atomic import atomic_path, write_json
 from .errors import UserError
 
 EYES = ("left", "right")
@@ -32,6 +33,9 @@ WORK_DIR = ".work"
 REQUIRED_KEYS = ("width", "height", "frames", "fps", "baseline", "K", "objects", "scene", "software", "seed",
                  "conventions_version", "render")
 FORMAT = "rgbd2scene-dataset"
+#: zlib level of the npz files: level 1 compresses ground truth as well as numpy's default (6) to within
+#: 1 % (float maps barely compress) in less than half the time (80 vs 190 ms per 512x256 eye).
+NPZ_COMPRESSLEVEL = 1
 
 
 class FramePaths(NamedTuple):
@@ -88,9 +92,13 @@ def install_file(src: str | Path, dst: str | Path) -> None:
     os.replace(src, dst)
 
 
-def write_gt(path: str | Path, gt: dict) -> None:
-    """Ground-truth dict -> compressed npz, atomically."""
-    write_npz(path, compressed=True, **{k: np.asarray(v) for k, v in gt.items()})
+def write_gt(path: str | Path, gt: dict, compresslevel: int = NPZ_COMPRESSLEVEL) -> None:
+    """Ground-truth dict -> compressed npz (a standard one: ``np.load`` reads it), atomically."""
+    with atomic_path(path, suffix=".npz") as tmp, zipfile.ZipFile(
+            tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as zf:
+        for key, value in gt.items():
+            with zf.open(f"{key}.npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
 
 
 def write_frame(root: str | Path, eye: str, index: int, rgb_uint8: np.ndarray | None,
