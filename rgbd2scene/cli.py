@@ -141,6 +141,17 @@ def cmd_scene(args) -> int:
     return 0
 
 
+def cmd_render(args) -> int:
+    from .render_job import render_dataset
+
+    summary = render_dataset(args.scene, args.output, frames=args.frames, size=args.size, gt=args.gt,
+                             start=args.start, end=args.end, samples=args.samples,
+                             adaptive=not args.no_adaptive, denoise=args.denoise, device=args.device,
+                             chunk=args.chunk, seed=args.seed, threads=args.threads, progress=not args.quiet)
+    print(f"rendered {summary['rendered']} frames, skipped {summary['skipped']} already done -> {args.output}")
+    return 0
+
+
 def cmd_verify(args) -> int:
     from .verify import format_report, verify_dataset
 
@@ -179,6 +190,29 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scene_args(p)
     p.add_argument("-o", "--output", required=True, help="scene folder")
     p.set_defaults(func=cmd_scene)
+
+    from .render_job import DEFAULT_CHUNK, DEFAULT_SAMPLES
+
+    p = sub.add_parser("render", help="render the stereo dataset with ground truth (resumable)")
+    p.add_argument("scene", help="scene folder made by 'rgbd2scene scene'")
+    p.add_argument("-o", "--output", required=True, help="dataset folder")
+    p.add_argument("--frames", type=int, help="dataset length: the first N frames of the path (default all)")
+    p.add_argument("--size", type=_size, help="image size WxH (default the scene's; K is rescaled)")
+    p.add_argument("--gt", default="all", help="maps: all, none, or a list of depth,disparity,normals,flow,"
+                   "segmentation (default all)")
+    p.add_argument("--start", type=int, help="first frame of this chunk (default 0)")
+    p.add_argument("--end", type=int, help="end (exclusive) of this chunk (default the last frame)")
+    p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help=f"RGB samples per pixel "
+                   f"(default {DEFAULT_SAMPLES})")
+    p.add_argument("--no-adaptive", action="store_true", help="turn off adaptive sampling")
+    p.add_argument("--denoise", default="none", help="denoiser: none, oidn, optix (default none)")
+    p.add_argument("--device", default="CPU", help="CPU or GPU (default CPU)")
+    p.add_argument("--threads", type=int, default=0, help="render threads (default all cores)")
+    p.add_argument("--chunk", type=int, default=DEFAULT_CHUNK, help=f"frames per worker process "
+                   f"(default {DEFAULT_CHUNK})")
+    p.add_argument("--seed", type=int, default=0, help="Cycles seed (default 0)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("verify", help="check the ground truth of a dataset; non-zero exit when it fails")
     p.add_argument("dataset", help="dataset folder")

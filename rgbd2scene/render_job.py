@@ -40,9 +40,14 @@ GT_RENDER = {"samples": 1, "filter_width_px": 0.01, "max_bounces": 0, "material_
 #: dataset.json entries that must match for a re-run to resume into the same folder.
 RESUME_KEYS = ("width", "height", "frames", "baseline", "K", "seed")
 RESUME_RENDER_KEYS = ("samples", "adaptive_sampling", "denoiser", "gt")
-_PROGRESS = re.compile(r"^frame (\d+) (done|skipped)\b")
+_PROGRESS = re.compile(r"^frame (\d+) (done|skipped|rgb)\b")
+#: Share of a frame's progress-bar step given when its images are written (the data render that
+#: completes it takes the rest: about a tenth of the time).
+RGB_SHARE = 0.9
 _NUMBERS = re.compile(r"(\w+) ([0-9.]+)(s|MB)")
 REPO_ROOT = Path(__file__).resolve().parents[1]
+#: Temporary files younger than this may belong to a run over other frames of the same folder: kept.
+TEMP_MIN_AGE_S = 60.0
 
 
 class RenderError(RuntimeError):
@@ -241,7 +246,7 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, frames: int | Non
         _check_resume(ds.read_dataset_json(out), info, json_path)
     else:
         ds.write_dataset_json(out, info)
-    ds.remove_temp_files(out)
+    ds.remove_temp_files(out, min_age_s=TEMP_MIN_AGE_S)
 
     with_gt = bool(maps)
     todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=with_gt)]
@@ -269,7 +274,7 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, frames: int | Non
     finally:
         if bar is not None:
             bar.close()
-    ds.remove_temp_files(out)
+    ds.remove_temp_files(out, min_age_s=TEMP_MIN_AGE_S)
 
     done = [stats[i] for i in sorted(stats)]
     wall = time.perf_counter() - t_start
@@ -292,12 +297,14 @@ def _progress_bar(total: int, enabled: bool):
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="frame", desc="render", dynamic_ncols=True)
+    return tqdm(total=total, unit="frame", desc="render", dynamic_ncols=True,
+                bar_format="{l_bar}{bar}| {n:.1f}/{total} frames [{elapsed}<{remaining}]")
 
 
 def _run_worker(cmd: list[str], group: set[int], stats: dict, starts: list, bar) -> None:
     """Run one worker process; parse its progress lines; raise RenderError when it fails."""
     t0 = time.perf_counter()
+    half_done: set[int] = set()
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=_worker_env(), text=True,
                                 bufsize=1)
@@ -310,12 +317,16 @@ def _run_worker(cmd: list[str], group: set[int], stats: dict, starts: list, bar)
                 m = _PROGRESS.match(line)
                 if not m or int(m.group(1)) not in group:
                     continue
-                index = int(m.group(1))
-                entry = {k: float(v) for k, v, _ in _NUMBERS.findall(line)}
-                if m.group(2) == "done":
-                    stats[index] = entry
+                index, what = int(m.group(1)), m.group(2)
+                if what == "rgb":
+                    half_done.add(index)
+                    step = RGB_SHARE
+                else:
+                    step = 1.0 - RGB_SHARE if index in half_done else 1.0
+                    if what == "done":
+                        stats[index] = {k: float(v) for k, v, _ in _NUMBERS.findall(line)}
                 if bar is not None:
-                    bar.update(1)
+                    bar.update(step)
             rc = proc.wait()
         except BaseException:
             proc.terminate()
