@@ -445,3 +445,15 @@ def test_worker_failure_is_reported(scene_a, tmp_path):
     (broken / "scene.blend").write_bytes(b"not a blend file")
     with pytest.raises(RenderError, match="worker failed"):
         render_dataset(broken, tmp_path / "out", frames=1, progress=False)
+
+
+def test_description_from_blend_when_scene_json_lacks_it(scene_a, tmp_path):
+    """scene.json without "scene": the description stored in the blend (scene["rgbd2scene"]) is used."""
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    (folder / "scene.blend").write_bytes((scene_a / "scene.blend").read_bytes())
+    (folder / "scene.json").write_text(json.dumps({"mesh": {"file": "mesh.ply"}}))
+    summary = render_dataset(folder, tmp_path / "ds", frames=1, gt="depth", samples=1, progress=False)
+    assert summary["rendered"] == 1
+    info = json.loads((tmp_path / "ds" / "dataset.json").read_text())
+    assert info["frames"] == 1 and info["objects"]["2"]["name"] == "instrument"
