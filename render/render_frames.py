@@ -52,6 +52,7 @@ import numpy as np
 
 from rgbd2scene import dataset as ds
 from rgbd2scene.camera import Intrinsics
+from rgbd2scene.cli import parse_size
 from rgbd2scene.conventions import opencv_pose_from_blender
 from rgbd2scene.groundtruth import MAPS, gt_from_passes, parse_maps, passes_needed
 from rgbd2scene.rig import StereoRig
@@ -339,16 +340,6 @@ def read_passes(path: Path, wanted) -> dict[str, np.ndarray]:
 
 # --- main ------------------------------------------------------------------------------------------------
 
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must look like 512x256, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
-    return w, h
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m render.render_frames", description=__doc__.splitlines()[0])
     p.add_argument("scene_dir", type=Path)
@@ -358,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=None,
                    help="frames in the whole dataset (its last frame has NaN forward flow); default: "
                         "dataset.json's, else the path's")
-    p.add_argument("--size", type=_size, default=None, help="WxH (default: the scene's)")
+    p.add_argument("--size", type=parse_size, default=None, help="WxH (default: the scene's)")
     p.add_argument("--samples", type=int, default=16, help="RGB samples per pixel (default 16)")
     p.add_argument("--no-adaptive", action="store_true", help="turn adaptive sampling off")
     p.add_argument("--denoise", default="none", choices=sorted(DENOISERS), help="RGB denoiser (default none)")

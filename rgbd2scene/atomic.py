@@ -36,6 +36,22 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
             tmp.unlink()
 
 
+def ensure_output_dir(out_dir: str | Path) -> Path:
+    """Create ``out_dir`` (and parents) and prove it writable, or raise a one-line ``UserError``."""
+    from .errors import UserError
+
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: output path exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test."):
+            pass
+    except OSError as exc:
+        raise UserError(f"{out}: output folder is not writable ({exc.strerror or exc})") from None
+    return out
+
+
 def write_bytes(path: str | Path, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import UserError
+from .errors import RenderError, UserError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -20,7 +20,7 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"error: {self.prog}: {message} (see --help)\n")
 
 
-def _size(text: str) -> tuple[int, int]:
+def parse_size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in text.lower().split("x"))
     except ValueError:
@@ -77,7 +77,8 @@ def _mesh_options(args):
 
 
 def cmd_mesh(args) -> int:
-    from .pipeline import ensure_output_dir, reconstruct, write_mesh_folder
+    from .atomic import ensure_output_dir
+    from .pipeline import reconstruct, write_mesh_folder
 
     t0 = time.perf_counter()
     ensure_output_dir(args.output)
@@ -99,7 +100,7 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
     d = __import__("rgbd2scene.scenebuild", fromlist=["SceneOptions"]).SceneOptions()
     g = p.add_argument_group("scene")
     g.add_argument("--mesh-dir", help="build from a folder made by 'rgbd2scene mesh' instead of --rgb/--depth")
-    g.add_argument("--size", type=_size, default=d.size, help="endoscope image size WxH (default 512x256)")
+    g.add_argument("--size", type=parse_size, default=d.size, help="endoscope image size WxH (default 512x256)")
     g.add_argument("--fov", type=float, default=d.fov_x_deg, help="horizontal field of view, degrees (default 70)")
     g.add_argument("--baseline", type=float, default=d.baseline, help="stereo baseline, metres (default 0.005)")
     g.add_argument("--path", default=d.path, choices=[k for k in PATH_KINDS if k != "waypoints"],
@@ -115,7 +116,8 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_scene(args) -> int:
-    from .pipeline import ensure_output_dir, reconstruct, scene_record, write_mesh_folder
+    from .atomic import ensure_output_dir
+    from .pipeline import reconstruct, scene_record, write_mesh_folder
     from .scenebuild import SceneOptions, build_scene_folder, load_mesh_folder
 
     t0 = time.perf_counter()
@@ -197,7 +199,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", help="scene folder made by 'rgbd2scene scene'")
     p.add_argument("-o", "--output", required=True, help="dataset folder")
     p.add_argument("--frames", type=int, help="dataset length: the first N frames of the path (default all)")
-    p.add_argument("--size", type=_size, help="image size WxH (default the scene's; K is rescaled)")
+    p.add_argument("--size", type=parse_size, help="image size WxH (default the scene's; K is rescaled)")
     p.add_argument("--gt", default="all", help="maps: all, none, or a list of depth,disparity,normals,flow,"
                    "segmentation (default all)")
     p.add_argument("--start", type=int, help="first frame of this chunk (default 0)")
@@ -238,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except RenderError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130

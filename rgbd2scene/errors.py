@@ -7,3 +7,10 @@ class UserError(Exception):
     The message names the file (or option) and the problem; the CLI prints ``error: <message>``
     on stderr and exits with status 2, without a traceback.
     """
+
+
+class RenderError(RuntimeError):
+    """The Blender worker failed (crash, Blender error); the message holds the tail of its log.
+
+    Not the user's fault: the CLI prints ``error: ...`` and exits with status 1.
+    """

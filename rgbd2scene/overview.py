@@ -17,6 +17,7 @@ import numpy as np
 
 from . import atomic
 from .errors import UserError
+from .mesh import vertex_normals
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 BACKGROUND = (28, 28, 28)  # RGB
@@ -262,20 +263,6 @@ def _rotation(axis: str, deg: float) -> np.ndarray:
     if axis == "x":
         return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
     return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (zero for unused vertices)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    fn = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        idx = t[:, k]
-        for axis in range(3):
-            n[:, axis] += np.bincount(idx, weights=fn[:, axis], minlength=len(v))
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def render_mesh_image(

@@ -7,16 +7,13 @@ with a scene.json is complete.
 
 from __future__ import annotations
 
-import os
-import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .atomic import write_json, write_npy
+from .atomic import ensure_output_dir, write_json, write_npy
 from .capture import Capture
 from .conventions import CONVENTIONS_VERSION
 from .errors import UserError
@@ -24,6 +21,7 @@ from .fill import FillResult, fill_depth
 from .mesh import Mesh, grid_mesh
 from .meshio import write_ply, write_textured_obj
 from .smooth import smooth_mesh
+from .versions import software_versions
 
 
 @dataclass
@@ -73,28 +71,6 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     timings["compute_s"] = timings["fill_s"] + timings["mesh_s"] + timings["smooth_s"]
     stats = {"fill": filled.stats, "mesh": mesh_stats, "smooth": smooth_stats}
     return Reconstruction(capture, options, filled, mesh, stats, timings)
-
-
-def ensure_output_dir(out_dir: str | Path) -> Path:
-    """Create ``out_dir`` (and parents) or raise a ``UserError`` saying why it is not writable."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: output path exists and is not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"{out}: cannot create output folder ({exc.strerror or exc})") from None
-    if not os.access(out, os.W_OK | os.X_OK):
-        raise UserError(f"{out}: output folder is not writable")
-    return out
-
-
-def software_versions() -> dict:
-    import cv2
-    import open3d
-
-    return {"rgbd2scene": __version__, "python": platform.python_version(), "numpy": np.__version__,
-            "open3d": open3d.__version__, "opencv": cv2.__version__}
 
 
 def scene_record(recon: Reconstruction) -> dict:

@@ -14,34 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from .conventions import orient_normals_to_camera, pixel_rays
+from .mesh import vertex_normals
 
 _INVALID = np.uint32(0xFFFFFFFF)
-
-
-def angle_weighted_vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Unit vertex normals weighted by each face's corner angle (as Blender's smooth shading).
-
-    Face normals follow the triangle winding (right-handed). Vertices without faces get NaN.
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    t = np.asarray(triangles, dtype=np.int64)
-    p0, p1, p2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    fn = np.cross(p1 - p0, p2 - p0)
-    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fn = np.where(fn_len > 0, fn / fn_len, 0.0)
-    normals = np.zeros_like(v)
-    for corner, (a, b, c) in enumerate(((p0, p1, p2), (p1, p2, p0), (p2, p0, p1))):
-        e1, e2 = b - a, c - a
-        n1, n2 = np.linalg.norm(e1, axis=1), np.linalg.norm(e2, axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cos = np.clip(np.sum(e1 * e2, axis=1) / (n1 * n2), -1.0, 1.0)
-        weighted = fn * np.nan_to_num(np.arccos(cos))[:, None]
-        for axis in range(3):  # bincount: much faster than np.add.at
-            normals[:, axis] += np.bincount(t[:, corner], weighted[:, axis], minlength=len(v))
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(length > 0, normals / length, np.nan)
 
 
 class Raycaster:
@@ -68,7 +43,7 @@ class Raycaster:
     def vertex_normals(self) -> np.ndarray:
         """Angle-weighted unit vertex normals (computed once)."""
         if self._vertex_normals is None:
-            self._vertex_normals = angle_weighted_vertex_normals(self.vertices, self.triangles)
+            self._vertex_normals = vertex_normals(self.vertices, self.triangles, "angle")
         return self._vertex_normals
 
     def cast_rays(self, origins: np.ndarray, directions: np.ndarray) -> dict[str, np.ndarray]:

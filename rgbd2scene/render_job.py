@@ -13,22 +13,21 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import platform
 import re
 import subprocess
 import sys
 import tempfile
 import time
-from importlib import metadata
 from pathlib import Path
 
-from . import __version__
 from . import dataset as ds
+from .atomic import ensure_output_dir
 from .camera import Intrinsics
 from .conventions import CONVENTIONS_VERSION
-from .errors import UserError
+from .errors import RenderError, UserError
 from .groundtruth import parse_maps
 from .scene import SceneDescription
+from .versions import software_versions
 
 DENOISERS = ("none", "oidn", "optix")
 DEVICES = ("CPU", "GPU")
@@ -50,10 +49,6 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 TEMP_MIN_AGE_S = 60.0
 
 
-class RenderError(RuntimeError):
-    """The Blender worker failed (crash, Blender error); the message holds the tail of its log."""
-
-
 def _sha1(path: Path) -> str | None:
     if not path.is_file():
         return None
@@ -62,21 +57,6 @@ def _sha1(path: Path) -> str | None:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def _version(dist: str) -> str | None:
-    try:
-        return metadata.version(dist)
-    except metadata.PackageNotFoundError:
-        return None
-
-
-def software_versions() -> dict:
-    """Versions of what renders and writes a dataset (from package metadata: nothing is imported)."""
-    return {"rgbd2scene": __version__, "python": platform.python_version(), "bpy": _version("bpy"),
-            "numpy": _version("numpy"), "open3d": _version("open3d"),
-            "opencv": _version("opencv-contrib-python-headless") or _version("opencv-python-headless")
-            or _version("opencv-python"), "OpenEXR": _version("OpenEXR")}
 
 
 def _worker_env() -> dict:
@@ -128,19 +108,6 @@ def _describe_from_blend(scene_dir: Path, python: str | None) -> dict:
         raise UserError(f"{scene_dir}: scene.json has no 'scene' and scene.blend holds no description "
                         f"({err[-1] if err else 'no output'})")
     return json.loads(lines[-1])
-
-
-def _ensure_output(out_dir: str | Path) -> Path:
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"{out}: exists and is not a folder")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=out, prefix=".write-test."):
-            pass
-    except OSError as exc:
-        raise UserError(f"{out}: output folder is not writable ({exc.strerror or exc})") from None
-    return out
 
 
 def dataset_info(scene_dir: Path, record: dict, description: SceneDescription, intr: Intrinsics, frames: int,
@@ -237,7 +204,7 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, frames: int | Non
         if w <= 0 or h <= 0:
             raise UserError(f"--size: must be positive, got {w}x{h}")
         intr = intr.resized(w, h)
-    out = _ensure_output(out_dir)
+    out = ensure_output_dir(out_dir)
 
     info = dataset_info(scene_dir, record, description, intr, n, maps, int(samples), bool(adaptive), denoise,
                         device, int(seed), int(chunk))
@@ -342,4 +309,4 @@ def _run_worker(cmd: list[str], group: set[int], stats: dict, starts: list, bar)
                               f"command: {' '.join(cmd)}")
 
 
-__all__ = ["render_dataset", "RenderError", "load_scene", "dataset_info", "software_versions"]
+__all__ = ["render_dataset", "RenderError", "load_scene", "dataset_info"]

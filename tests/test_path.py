@@ -9,6 +9,7 @@ import pytest
 
 from rgbd2scene.conventions import backproject, project, transform_points
 from rgbd2scene.errors import UserError
+from rgbd2scene.mesh import vertex_normals
 from rgbd2scene.path import (
     CameraPath,
     load_path_file,
@@ -18,7 +19,7 @@ from rgbd2scene.path import (
     save_path_file,
     waypoint_path,
 )
-from rgbd2scene.raycast import angle_weighted_vertex_normals, raycaster
+from rgbd2scene.raycast import raycaster
 from rgbd2scene.rig import StereoRig
 
 KINECT_K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
@@ -87,7 +88,7 @@ def test_raycaster_plane_exact_pixel_centres():
 def test_smooth_normals_interpolate_vertex_normals():
     v, t = kinect_tissue(step=16)
     rc = raycaster(v, t)
-    vn = angle_weighted_vertex_normals(v, t)
+    vn = vertex_normals(v, t, "angle")
     assert np.allclose(np.linalg.norm(vn, axis=1), 1.0)
     T = look_at([0.0, 0.0, 0.55], [0.0, 0.0, 0.6])
     K = StereoRig.endoscope(32, 16).intrinsics.K

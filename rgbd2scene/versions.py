@@ -1,0 +1,23 @@
+"""Versions of the software that made a scene or dataset (recorded for provenance)."""
+
+from __future__ import annotations
+
+import platform
+from importlib import metadata
+
+from . import __version__
+
+
+def _version(dist: str) -> str | None:
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def software_versions() -> dict:
+    """Versions from package metadata (nothing is imported, so this is cheap)."""
+    return {"rgbd2scene": __version__, "python": platform.python_version(), "bpy": _version("bpy"),
+            "numpy": _version("numpy"), "open3d": _version("open3d"),
+            "opencv": _version("opencv-contrib-python-headless") or _version("opencv-python-headless")
+            or _version("opencv-python"), "OpenEXR": _version("OpenEXR")}
