@@ -102,6 +102,8 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mesh-dir", help="build from a folder made by 'rgbd2scene mesh' instead of --rgb/--depth")
     g.add_argument("--size", type=parse_size, default=d.size, help="endoscope image size WxH (default 512x256)")
     g.add_argument("--fov", type=float, default=d.fov_x_deg, help="horizontal field of view, degrees (default 70)")
+    g.add_argument("--scope-camera", help="endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, height); "
+                   "overrides --size and --fov")
     g.add_argument("--baseline", type=float, default=d.baseline, help="stereo baseline, metres (default 0.005)")
     g.add_argument("--path", default=d.path, choices=[k for k in PATH_KINDS if k != "waypoints"],
                    help="generated camera path (default scan)")
@@ -117,12 +119,14 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
 
 def cmd_scene(args) -> int:
     from .atomic import ensure_output_dir
+    from .camera import load_camera_json
     from .pipeline import reconstruct, scene_record, write_mesh_folder
     from .scenebuild import SceneOptions, build_scene_folder, load_mesh_folder
 
     t0 = time.perf_counter()
     out = ensure_output_dir(args.output)
-    options = SceneOptions(size=args.size, fov_x_deg=args.fov, baseline=args.baseline, path=args.path,
+    scope = load_camera_json(args.scope_camera)[0] if args.scope_camera else None
+    options = SceneOptions(size=args.size, fov_x_deg=args.fov, intrinsics=scope, baseline=args.baseline, path=args.path,
                            path_file=args.path_file, frames=args.frames, fps=args.fps, standoff=args.standoff,
                            seed=args.seed, material=args.material, light=args.light,
                            light_power_w=args.light_power)

@@ -101,24 +101,20 @@ def load_mesh(path: str | Path):
     return mesh
 
 
-def _set_view(vis, mesh, zoom: float = 0.45) -> None:
-    """Look from the capture camera's origin towards the mesh, image-up = -y (OpenCV frame)."""
-    v = np.asarray(mesh.vertices)
-    centre = (v.min(axis=0) + v.max(axis=0)) / 2.0
-    front = -centre  # from the look-at point back towards the camera at the origin
-    norm = np.linalg.norm(front)
-    front = front / norm if norm > 1e-9 else np.array([0.0, 0.0, -1.0])
-    up = np.array([0.0, -1.0, 0.0])
-    up = up - front * float(up @ front)
-    if np.linalg.norm(up) < 1e-6:  # looking straight along y: fall back to image-up = -z
-        up = np.array([0.0, 0.0, -1.0])
-        up = up - front * float(up @ front)
-    up /= np.linalg.norm(up)
+def _set_view(vis, mesh, fov_x_deg: float = 60.0, back_off: float = 0.15) -> None:
+    """Look through the capture camera (the world frame: OpenCV axes, so the image is upright), backed
+    off along -z by ``back_off`` of the median depth so the mesh's edges show."""
+    import open3d as o3d
+
     ctr = vis.get_view_control()
-    ctr.set_lookat(centre)
-    ctr.set_front(front)
-    ctr.set_up(up)
-    ctr.set_zoom(zoom)
+    params = ctr.convert_to_pinhole_camera_parameters()
+    w, h = params.intrinsic.width, params.intrinsic.height
+    f = (w / 2.0) / np.tan(np.radians(fov_x_deg) / 2.0)
+    params.intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, f, f, (w - 1) / 2.0, (h - 1) / 2.0)
+    extrinsic = np.eye(4)  # world -> camera
+    extrinsic[2, 3] = back_off * float(np.median(np.asarray(mesh.vertices)[:, 2]))
+    params.extrinsic = extrinsic
+    ctr.convert_from_pinhole_camera_parameters(params, allow_arbitrary=True)
 
 
 def _configure(vis) -> None:

@@ -30,6 +30,7 @@ class SceneOptions:
 
     size: tuple[int, int] = DEFAULT_SIZE
     fov_x_deg: float = DEFAULT_FOV_X_DEG
+    intrinsics: Intrinsics | None = None  # exact fx, fy, cx, cy (overrides size and fov)
     baseline: float = DEFAULT_BASELINE
     path: str = "scan"
     path_file: str | None = None
@@ -44,8 +45,11 @@ class SceneOptions:
     def rig(self) -> StereoRig:
         if self.baseline <= 0 or self.baseline > 0.1:
             raise UserError(f"--baseline: {self.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
-        intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
-        intr.check("--fov/--size")
+        if self.intrinsics is not None:
+            intr = self.intrinsics
+        else:
+            intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
+            intr.check("--fov/--size")
         return StereoRig(intr, self.baseline)
 
 
@@ -83,7 +87,8 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions)
     timings["blend_s"] = time.perf_counter() - t0
     record = dict(record)
     record["scene"] = desc.to_dict()
-    record["scene_options"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in options.__dict__.items()}
+    record["scene_options"] = {k: (list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, Intrinsics)
+                                   else v) for k, v in options.__dict__.items()}
     record["coverage"] = {"min": float(coverage.min()), "mean": float(coverage.mean()),
                           "per_frame_left_right": coverage.round(4).tolist(), "check_scale": 0.5}
     record["blend"] = "scene.blend"
