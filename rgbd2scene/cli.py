@@ -155,6 +155,12 @@ def cmd_render(args) -> int:
                              adaptive=not args.no_adaptive, denoise=args.denoise, device=args.device,
                              chunk=args.chunk, seed=args.seed, threads=args.threads, progress=not args.quiet)
     print(f"rendered {summary['rendered']} frames, skipped {summary['skipped']} already done -> {args.output}")
+    if not args.no_sheet:
+        from .contact_sheet import write_frame_sheet
+
+        start, end = summary["range"]
+        sheet = write_frame_sheet(args.output, (start + end - 1) // 2, Path(args.output) / "contact_sheet.png")
+        print(f"contact sheet: {sheet}")
     return 0
 
 
@@ -218,6 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
                    f"(default {DEFAULT_CHUNK})")
     p.add_argument("--seed", type=int, default=0, help="Cycles seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--no-sheet", action="store_true", help="skip DATASET/contact_sheet.png (middle frame, all maps)")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("verify", help="check the ground truth of a dataset; non-zero exit when it fails")

@@ -98,7 +98,7 @@ def _put(img, text, org, scale=0.55, color=TEXT, thickness=1):
     cv2.putText(img, text, org, FONT, scale, color, thickness, cv2.LINE_AA)
 
 
-def _label(panel: np.ndarray, text: str) -> np.ndarray:
+def label_panel(panel: np.ndarray, text: str) -> np.ndarray:
     """Draw ``text`` on a dark band at the panel's top-left corner."""
     (tw, th), base = cv2.getTextSize(text, FONT, 0.55, 1)
     band = panel[: th + base + 10, : tw + 14]
@@ -124,7 +124,7 @@ def _as_rgb_u8(img: np.ndarray, what: str) -> np.ndarray:
     return np.round(np.clip(a, 0, 1) * 255).astype(np.uint8)
 
 
-def _fit(img: np.ndarray, w: int, h: int, interp=cv2.INTER_AREA) -> np.ndarray:
+def fit_cell(img: np.ndarray, w: int, h: int, interp=cv2.INTER_AREA) -> np.ndarray:
     """Scale ``img`` to fit a w x h cell, centred on the background colour."""
     ih, iw = img.shape[:2]
     s = min(w / iw, h / ih)
@@ -202,7 +202,7 @@ def make_overview(
     pw, ph = boxes[0][2], boxes[0][3]
     sheet = np.full((height, width, 3), BACKGROUND, np.uint8)
     for (img, label), (x, y, _, _) in zip(panels, boxes, strict=False):
-        sheet[y:y + ph, x:x + pw] = _label(_fit(img, pw, ph), label)
+        sheet[y:y + ph, x:x + pw] = label_panel(fit_cell(img, pw, ph), label)
     bar_h = boxes[-1][1] + ph - boxes[0][1]
     bar = colour_bar(bar_h, vmin, vmax, BAR_W)
     if len(panels) < len(boxes):  # spare cell: the numbers behind the pictures

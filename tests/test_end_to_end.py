@@ -80,6 +80,16 @@ def test_render_writes_contract_layout(scene_and_dataset):
             assert np.isfinite(gt["depth"]).mean() >= 0.95
 
 
+def test_render_writes_a_contact_sheet_of_every_map(scene_and_dataset):
+    import cv2
+
+    _, dataset = scene_and_dataset
+    sheet = cv2.imread(str(dataset / "contact_sheet.png"))
+    assert sheet is not None
+    # 2 columns x 4 rows: both eyes, depth, disparity, normals, both flows, segmentation
+    assert sheet.shape[1] > sheet.shape[0] * 0.9 and sheet.std() > 10
+
+
 def test_verify_passes_then_fails_on_corruption(scene_and_dataset, tmp_path, capsys):
     _, dataset = scene_and_dataset
     assert main(["verify", str(dataset), "--quiet"]) == 0
