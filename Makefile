@@ -28,12 +28,18 @@ $(STAMP): pyproject.toml | system-deps
 test: install
 	$(BIN)/python -m pytest -q tests
 
+# The main job on the bundled sample: capture -> scene -> stereo dataset -> verified ground truth.
 demo: install
 	$(BIN)/rgbd2scene scene --rgb data_samples/tissue/rgb.png --depth data_samples/tissue/depth.png \
-	  --camera data_samples/tissue/camera.json -o $(DEMO_OUT)/scene
-	$(BIN)/rgbd2scene render $(DEMO_OUT)/scene -o $(DEMO_OUT)/dataset --frames 8
-	$(BIN)/rgbd2scene verify $(DEMO_OUT)/dataset
-	@echo "demo results: $(DEMO_OUT)/scene (mesh.ply, scene.blend, overview.png) and $(DEMO_OUT)/dataset"
+	  --camera data_samples/tissue/camera.json --path scan --frames 30 -o $(DEMO_OUT)/scene
+	$(BIN)/rgbd2scene render $(DEMO_OUT)/scene -o $(DEMO_OUT)/dataset --frames 12
+	$(BIN)/rgbd2scene verify $(DEMO_OUT)/dataset --quiet --json $(DEMO_OUT)/verify.json
+	$(BIN)/rgbd2scene preview $(DEMO_OUT)/scene --screenshot $(DEMO_OUT)/preview.png
+	@echo
+	@echo "demo results in $(DEMO_OUT)/:"
+	@echo "  scene/    scene.blend (open in Blender), mesh.ply, mesh.obj, overview.png, scene.json"
+	@echo "  dataset/  left|right/rgb/*.png, left|right/gt/*.npz, dataset.json, contact_sheet.png"
+	@echo "  verify.json (ground-truth checks), preview.png (Open3D screenshot of the mesh)"
 
 bench: install
 	$(BIN)/python benchmarks/run_all.py
