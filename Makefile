@@ -33,13 +33,14 @@ demo: install
 	$(BIN)/rgbd2scene scene --rgb data_samples/tissue/rgb.png --depth data_samples/tissue/depth.png \
 	  --camera data_samples/tissue/camera.json --path scan --frames 30 -o $(DEMO_OUT)/scene
 	$(BIN)/rgbd2scene render $(DEMO_OUT)/scene -o $(DEMO_OUT)/dataset --frames 12
-	$(BIN)/rgbd2scene verify $(DEMO_OUT)/dataset --quiet --json $(DEMO_OUT)/verify.json
+	$(BIN)/rgbd2scene verify $(DEMO_OUT)/dataset --quiet --json $(DEMO_OUT)/verify.json \
+	  --error-maps $(DEMO_OUT)/error_maps
 	$(BIN)/rgbd2scene preview $(DEMO_OUT)/scene --screenshot $(DEMO_OUT)/preview.png
 	@echo
 	@echo "demo results in $(DEMO_OUT)/:"
 	@echo "  scene/    scene.blend (open in Blender), mesh.ply, mesh.obj, overview.png, scene.json"
 	@echo "  dataset/  left|right/rgb/*.png, left|right/gt/*.npz, dataset.json, contact_sheet.png"
-	@echo "  verify.json (ground-truth checks), preview.png (Open3D screenshot of the mesh)"
+	@echo "  verify.json and error_maps/ (ground-truth checks), preview.png (Open3D screenshot of the mesh)"
 
 bench: install
 	$(BIN)/python benchmarks/run_all.py

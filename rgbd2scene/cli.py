@@ -170,7 +170,7 @@ def cmd_verify(args) -> int:
     root = Path(args.dataset)
     if not (root / "dataset.json").is_file():
         raise UserError(f"{root}: not a dataset folder (no dataset.json)")
-    report = verify_dataset(root, mesh_path=args.mesh, progress=not args.quiet)
+    report = verify_dataset(root, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
     print(format_report(report))
     if args.json:
         from .atomic import write_json
@@ -231,6 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("--mesh", help="scene mesh to ray cast (default: the one dataset.json names)")
     p.add_argument("--json", help="also write the report as JSON")
+    p.add_argument("--error-maps", help="folder for error-map pictures of the worst frames (per eye)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_verify)
 

@@ -17,6 +17,9 @@ independent computation:
 - ``coverage``: fraction of pixels with surface (a warning, not a failure, below 95 %).
 
 ``verify_dataset`` returns a :class:`VerifyReport` (``report.ok``); ``format_report`` prints it.
+With ``error_maps=DIR`` it also draws, per eye, the worst frame of the depth check (and of the flow check,
+where that is another frame) as a PNG of labelled panels: dataset and ray-cast depth, |depth error|,
+normal angle error, flow endpoint error and left/right disparity mismatch (:func:`render_error_map`).
 """
 
 from __future__ import annotations
@@ -106,6 +109,7 @@ class VerifyReport:
     seconds: float = 0.0
     seconds_per_frame: float = float("nan")
     notes: list[str] = field(default_factory=list)
+    error_maps: list[str] = field(default_factory=list)  # PNGs written with ``verify_dataset(error_maps=DIR)``
 
     @property
     def ok(self) -> bool:
@@ -248,12 +252,14 @@ def _image_shift(depth: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> float:
 
 
 def _lr_consistency(z_src: np.ndarray, z_dst: np.ndarray, fx: float, baseline: float, sign: float,
-                    tol: Tolerances) -> tuple[float, float, float, int]:
+                    tol: Tolerances, out: dict | None = None) -> tuple[float, float, float, int]:
     """Compare source depth with the other eye's depth sampled where the disparity sends each pixel.
 
     ``sign`` = -1 for left -> right (u - d), +1 for right -> left (u + d). Returns (fraction of compared
     pixels where the other eye sees further than this eye's surface by more than the threshold, median
     |disparity difference| over non-occluded compared pixels, occluded fraction, compared count).
+    With ``out`` (a dict), also puts the per-pixel map there: ``out["value"]`` |disparity difference| (px,
+    float32, NaN where not compared or occluded) and ``out["state"]`` (uint8 ``_ST_*`` codes).
     """
     with np.errstate(divide="ignore", invalid="ignore"):
         d_src = np.where(z_src > 0, fx * baseline / z_src.astype(np.float64), np.nan)
@@ -266,9 +272,23 @@ def _lr_consistency(z_src: np.ndarray, z_dst: np.ndarray, fx: float, baseline: f
     a = np.where(ok, u, 0) - u0
     rows = np.broadcast_to(np.arange(h)[:, None], (h, w))
     g0, g1 = d_dst[rows, u0], d_dst[rows, u1]
+    inside = ok.copy()
+    sampled = np.isfinite(g0) & np.isfinite(g1)
     with np.errstate(invalid="ignore"):
-        ok &= np.isfinite(g0) & np.isfinite(g1) & (np.abs(g0 - g1) <= tol.lr_jump_px)
+        ok &= sampled & (np.abs(g0 - g1) <= tol.lr_jump_px)
     n = int(ok.sum())
+    if out is not None:
+        full = (1 - a) * g0 + a * g1 - d_src
+        src = np.isfinite(d_src)
+        state = np.full((h, w), _ST_NONE, np.uint8)
+        state[src] = _ST_SKIP  # leaves the other image, or samples across a depth edge there
+        state[src & inside & ~sampled] = _ST_ONE  # the other eye has no surface where this one points
+        state[ok] = _ST_OK
+        with np.errstate(invalid="ignore"):
+            state[ok & (full > tol.lr_threshold_px)] = _ST_OCC
+        value = np.full((h, w), np.nan, np.float32)
+        value[state == _ST_OK] = np.abs(full[state == _ST_OK])
+        out["value"], out["state"] = value, state
     if n == 0:
         return float("nan"), float("nan"), float("nan"), 0
     diff = ((1 - a) * g0 + a * g1 - d_src)[ok]  # > 0: the other eye sees something closer (occlusion)
@@ -317,6 +337,79 @@ def _resolve_mesh(dataset_dir: Path, meta: dict, mesh_path) -> tuple[Path | None
     if not candidates:
         return None, "dataset.json names no scene mesh (scene.mesh); pass the mesh path"
     return None, f"scene mesh not found ({', '.join(str(c) for c in candidates)})"
+
+
+# ------------------------------------------------------------------------------------------------ error maps
+# Per-pixel errors of one eye and frame, kept (for the worst frame only) to draw the error-map pictures.
+
+#: state of each pixel of an error map: compared (has an error value), no surface in either source, valid
+#: in one source only, not compared (other or moving objects, depth edges, outside the other view),
+#: occluded in the other eye (stereo only)
+_ST_OK, _ST_NONE, _ST_ONE, _ST_SKIP, _ST_OCC = 0, 1, 2, 3, 4
+#: RGB colour and legend text of the pixels without an error value
+STATE_COLOURS = {
+    _ST_ONE: ((255, 0, 255), "valid in one source only"),
+    _ST_OCC: ((70, 130, 180), "occluded in the other eye"),
+    _ST_SKIP: ((110, 110, 110), "not compared"),
+    _ST_NONE: ((0, 0, 0), "no surface"),
+}
+#: error panel -> (unit, low, high) of its log colour scale (viridis; values are clipped to it)
+ERROR_SCALES = {"depth": ("um", 1e-2, 1e3), "normals": ("deg", 1e-3, 1e2), "flow": ("px", 1e-4, 1e1),
+                "stereo": ("px", 1e-4, 1e1)}
+#: the panels of an error-map picture, row-major in three columns (see :func:`error_map_layout`)
+ERROR_PANELS = ("depth_dataset", "depth_raycast", "depth", "normals", "flow", "stereo")
+
+
+@dataclass
+class ErrorPanel:
+    """One per-pixel error map: ``value`` (float32, NaN where there is none) and ``state`` (uint8 ``_ST_*``)."""
+
+    value: np.ndarray
+    state: np.ndarray
+    title: str
+    note: str = ""
+
+
+@dataclass
+class FrameErrors:
+    """The error maps of one eye and frame, and how far its depth / flow checks are off (``scores``)."""
+
+    eye: str
+    frame: int
+    depth: np.ndarray
+    ref_depth: np.ndarray | None = None
+    panels: dict[str, ErrorPanel] = field(default_factory=dict)
+    scores: dict[str, float] = field(default_factory=dict)  # "depth", "flow": max over metrics of value / tol
+
+
+def _states(a: np.ndarray, b: np.ndarray, compared: np.ndarray) -> np.ndarray:
+    """State codes from two sources' valid masks, within the ``compared`` pixels."""
+    state = np.full(a.shape, _ST_NONE, np.uint8)
+    state[a & b] = _ST_OK
+    state[a ^ b] = _ST_ONE
+    state[~compared] = _ST_SKIP
+    return state
+
+
+def _ratio(value: float, tol: float | None) -> float:
+    if value is None or tol is None or not np.isfinite(value):
+        return float("nan")
+    return float(value) / max(float(tol), 1e-12)
+
+
+def _worst(*ratios: float) -> float:
+    vals = [r for r in ratios if not np.isnan(r)]
+    return max(vals) if vals else float("nan")
+
+
+def _keep_worst(keep: dict, fes: dict[str, FrameErrors]) -> None:
+    """Keep, per (check, eye), the frame whose depth / flow score is the largest so far (ties: the first)."""
+    for eye, fe in fes.items():
+        for kind in ("depth", "flow"):
+            score = fe.scores.get(kind, float("nan"))
+            cur = keep.get((kind, eye))
+            if not np.isnan(score) and (cur is None or score > cur.scores[kind]):
+                keep[(kind, eye)] = fe
 
 
 # ------------------------------------------------------------------------------------------------ checks
@@ -429,7 +522,7 @@ def _check_schema(col: _Collector, problems: list, eye: str, f: int, gt: dict, m
 
 def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = None, *,
                    progress: bool = True, frames=None, normals: str = "smooth",
-                   mesh_ids=None) -> VerifyReport:
+                   mesh_ids=None, error_maps: str | Path | None = None) -> VerifyReport:
     """Check a dataset folder (CONVENTIONS.md section 4) for self-consistency; see the module docstring.
 
     Parameters
@@ -443,6 +536,10 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
     normals : ``"smooth"`` (interpolated vertex normals: a smooth-shaded render) or ``"face"``.
     mesh_ids : segmentation ids of the mesh's surface (default: objects of class "tissue" in the object
         table, else every id); pixels of other objects, and of moving ones, are left out of the mesh checks.
+    error_maps : optional folder for error-map pictures: per eye, one PNG of the worst frame of the depth
+        check (``depth_left_frame000012.png``) and, where it is another frame, one of the worst frame of
+        the flow check (``flow_left_frame000007.png``); see :func:`render_error_map`. Their paths are
+        listed in ``report.error_maps``. Only the worst frame's maps are held in memory.
     """
     from tqdm import tqdm
 
@@ -466,6 +563,13 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
         raise UserError(f"{meta_path}: lacks key {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
         raise UserError(f"{meta_path}: bad value ({exc})") from None
+
+    maps_dir = None
+    if error_maps is not None:
+        from .atomic import ensure_output_dir
+
+        maps_dir = ensure_output_dir(error_maps)
+    keep: dict[tuple[str, str], FrameErrors] | None = {} if maps_dir is not None else None
 
     col = _Collector()
     problems: list[str] = []
@@ -560,12 +664,16 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
                 depth_cache[(eye, f)] = gt["depth"]
         for key in [k for k in depth_cache if k[1] < f - 1]:
             del depth_cache[key]
+        fes: dict[str, FrameErrors] = {}
         for eye in EYES:
             gt = gts[eye]
             if gt is None:
                 continue
+            fe = FrameErrors(eye, f, gt["depth"]) if keep is not None else None
             _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol, rc, normals, mesh_ids, moving,
-                          neighbour_depth)
+                          neighbour_depth, fe)
+            if fe is not None:
+                fes[eye] = fe
         if gts["left"] is not None and gts["right"] is not None:
             Tl, Tr = gts["left"]["T_world_cam"], gts["right"]["T_world_cam"]
             T_lr = invert_pose(Tl) @ Tr
@@ -578,16 +686,27 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
             fx = float(gts["left"]["K"][0, 0])
             zl, zr = gts["left"]["depth"], gts["right"]["depth"]
             for eye, (a, b, sign) in (("L->R", (zl, zr, -1.0)), ("R->L", (zr, zl, 1.0))):
-                further, med, occ, n = _lr_consistency(a, b, fx, baseline, sign, tol)
+                out = {} if fes else None
+                further, med, occ, n = _lr_consistency(a, b, fx, baseline, sign, tol, out=out)
                 if n:
                     col.add("stereo", eye, "other eye sees further (frac)", f, further, tol.lr_inconsistent)
                     col.add("stereo", eye, "median |disparity diff|", f, med, tol.lr_median_px, unit="px")
                     col.add("stereo", eye, "occluded in other eye (frac)", f, occ, None)
+                owner = "left" if eye == "L->R" else "right"
+                if out and owner in fes:
+                    note = (f"further {_fmt(100 * further, '%')}, median {_fmt(med, 'px')}, "
+                            f"occluded {_fmt(100 * occ, '%')}" if n else "no pixels to compare")
+                    fes[owner].panels["stereo"] = ErrorPanel(out["value"], out["state"],
+                                                             f"{eye} disparity mismatch", note)
+        if keep is not None:
+            _keep_worst(keep, fes)
         frame_times.append(time.perf_counter() - t_frame)
+
+    written = _write_error_maps(maps_dir, keep, tol, root.name) if keep is not None else []
 
     return VerifyReport(str(root), W, H, n_frames, str(mesh_file) if mesh_file else None,
                         col.results(), problems, time.perf_counter() - t_start,
-                        float(np.mean(frame_times)) if frame_times else float("nan"), notes)
+                        float(np.mean(frame_times)) if frame_times else float("nan"), notes, written)
 
 
 def _check_rgb(col, problems, eye, f, rgb_path: Path, root: Path, H: int, W: int) -> None:
@@ -627,7 +746,8 @@ def _occlusion_reference(depth, K, T_a, T_b, depth_b, rel: float):
 
 
 def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances, rc, normals_mode,
-                  mesh_ids, moving, neighbour_depth) -> None:
+                  mesh_ids, moving, neighbour_depth, fe: FrameErrors | None = None) -> None:
+    """The per-eye checks of one frame; with ``fe``, also keeps their per-pixel error maps there."""
     K, T = gt["K"], gt["T_world_cam"]
     depth = gt["depth"].astype(np.float64)
     with np.errstate(invalid="ignore"):
@@ -651,6 +771,7 @@ def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances,
             col.add("disparity", eye, "max rel error vs fx*B/z", f, float(rel.max()), tol.disparity_rel)
 
     # (d) flow, static surface only
+    flow_maps: dict[str, tuple[float, ErrorPanel]] = {}
     for key, check, g in (("flow_forward", "flow_fwd", f + 1), ("flow_backward", "flow_bwd", f - 1)):
         flow = gt.get(key)
         if flow is None or flow.shape != (H, W, 2) or g < 0 or g > last or (eye, g) not in poses:
@@ -659,14 +780,24 @@ def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances,
         ref_ok = np.all(np.isfinite(ref), axis=-1) & surface & static
         have = np.all(np.isfinite(flow), axis=-1)
         both = ref_ok & have
+        med = p99 = missing = float("nan")
         if both.any():
             epe = np.linalg.norm(flow[both].astype(np.float64) - ref[both], axis=-1)
             med, p99 = _stats(epe)
             col.add(check, eye, "median endpoint error", f, med, tol.flow_median_px, unit="px")
             col.add(check, eye, "p99 endpoint error", f, p99, tol.flow_p99_px, unit="px")
         if ref_ok.any():
-            col.add(check, eye, "surface pixels without flow (frac)", f,
-                    float((ref_ok & ~have).sum() / ref_ok.sum()), tol.flow_missing)
+            missing = float((ref_ok & ~have).sum() / ref_ok.sum())
+            col.add(check, eye, "surface pixels without flow (frac)", f, missing, tol.flow_missing)
+        if fe is not None:
+            value = np.full((H, W), np.nan, np.float32)
+            if both.any():
+                value[both] = epe
+            title = f"{key.split('_')[1]} flow endpoint error to frame {g}"
+            note = f"median {_fmt(med, 'px')}, p99 {_fmt(p99, 'px')}"
+            flow_maps[key] = (_worst(_ratio(med, tol.flow_median_px), _ratio(p99, tol.flow_p99_px),
+                                     _ratio(missing, tol.flow_missing)),
+                              ErrorPanel(value, _states(ref_ok, have, static), title, note))
         occ_key = "occluded_forward" if key == "flow_forward" else "occluded_backward"
         occ = gt.get(occ_key)
         depth_g = neighbour_depth(eye, g)
@@ -684,6 +815,13 @@ def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances,
             col.add("flow_fwd" if key == "flow_forward" else "flow_bwd", eye,
                     f"finite values on the {'last' if boundary else 'first'} frame (count)", f,
                     float(np.isfinite(flow).any(axis=-1).sum()), 0.0)
+    if fe is not None and flow_maps:
+        # The picture shows the forward flow unless there is none (last frame) or only the backward flow
+        # is out of tolerance; the frame's flow score is the worse of the two directions.
+        fwd, bwd = flow_maps.get("flow_forward"), flow_maps.get("flow_backward")
+        show = fwd if fwd is not None and (bwd is None or not bwd[0] > max(fwd[0], 1.0)) else bwd
+        fe.panels["flow"] = show[1]
+        fe.scores["flow"] = _worst(*(m[0] for m in flow_maps.values()))
 
     # (a), (b) against the mesh
     if rc is None:
@@ -697,26 +835,45 @@ def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances,
     ref_depth = cast["depth"].astype(np.float64)
     ref_ok = np.isfinite(ref_depth)
     both = surface & ref_ok & consider
+    med = p99 = shift = float("nan")
     if both.any():
         err_mm = np.abs(depth[both] - ref_depth[both]) * 1000.0
         med, p99 = _stats(err_mm)
+        shift = _image_shift(depth, ref_depth, both)
         col.add("depth", eye, "median abs error", f, med, tol.depth_median_mm, unit="mm")
         col.add("depth", eye, "p99 abs error", f, p99, tol.depth_p99_mm, unit="mm")
-        col.add("depth", eye, "image shift explaining the error", f,
-                _image_shift(depth, ref_depth, both), tol.depth_shift_px, unit="px")
+        col.add("depth", eye, "image shift explaining the error", f, shift, tol.depth_shift_px, unit="px")
     mismatch = (surface != ref_ok) & consider
     band = _silhouette_band(ref_ok, tol.mask_band_px) | _silhouette_band(surface, tol.mask_band_px)
-    col.add("depth", eye, "valid-mask mismatch off silhouettes (frac)", f,
-            float((mismatch & ~band).sum() / consider.size), tol.mask_mismatch)
+    off = float((mismatch & ~band).sum() / consider.size)
+    col.add("depth", eye, "valid-mask mismatch off silhouettes (frac)", f, off, tol.mask_mismatch)
     col.add("depth", eye, "valid-mask mismatch incl. silhouettes (frac)", f,
             float(mismatch.sum() / consider.size), None)
+    if fe is not None:
+        fe.ref_depth = cast["depth"].astype(np.float32)
+        value = np.full((H, W), np.nan, np.float32)
+        if both.any():
+            value[both] = err_mm * 1000.0
+        note = f"median {_fmt(med * 1000.0, 'um')}, p99 {_fmt(p99 * 1000.0, 'um')}"
+        fe.panels["depth"] = ErrorPanel(value, _states(surface, ref_ok, consider), "|depth error|", note)
+        fe.scores["depth"] = _worst(_ratio(med, tol.depth_median_mm), _ratio(p99, tol.depth_p99_mm),
+                                    _ratio(shift, tol.depth_shift_px), _ratio(off, tol.mask_mismatch))
     normals = gt.get("normals")
     if normals is not None and normals.shape == (H, W, 3):
-        nb = both & np.all(np.isfinite(normals), axis=-1)
+        n_fin = np.all(np.isfinite(normals), axis=-1)
+        nb = both & n_fin
+        if fe is not None:
+            c_fin = np.all(np.isfinite(cast["normals_cam"]), axis=-1)
+            fe.panels["normals"] = ErrorPanel(np.full((H, W), np.nan, np.float32),
+                                              _states(surface & n_fin, ref_ok & c_fin, consider),
+                                              f"normal angle error vs {normals_mode} normals", "no pixels to compare")
         if nb.any():
             n = normals[nb].astype(np.float64)
             ang = _angle_deg(n, cast["normals_cam"][nb].astype(np.float64))
             med, p99 = _stats(ang)
+            if fe is not None:
+                fe.panels["normals"].value[nb] = ang
+                fe.panels["normals"].note = f"median {_fmt(med, 'deg')}, p99 {_fmt(p99, 'deg')}"
             col.add("normals", eye, f"median angle vs {normals_mode} normals", f, med, tol.normal_median_deg,
                     unit="deg")
             col.add("normals", eye, f"p99 angle vs {normals_mode} normals", f, p99, tol.normal_p99_deg,
@@ -725,6 +882,178 @@ def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances,
                 face_ang = _angle_deg(n, cast["face_normals_cam"][nb].astype(np.float64))
                 col.add("normals", eye, "median angle vs face normals", f, float(np.nanmedian(face_ang)),
                         None, unit="deg")
+
+
+# ------------------------------------------------------------------------------------------------ pictures
+
+_EM_TITLE_H, _EM_LABEL_H, _EM_BAR_H, _EM_GAP = 60, 40, 34, 8
+_FONT_SCALE, _TEXT = 0.5, (235, 235, 235)
+
+
+def error_map_layout(width: int, height: int) -> tuple[int, int, list[tuple[int, int, int, int]]]:
+    """Size of an error-map picture of ``width x height`` frames and the image box of each panel.
+
+    Returns ``(sheet_w, sheet_h, boxes)``: one ``(x, y, w, h)`` per :data:`ERROR_PANELS` entry, three
+    panels a row, each with a label strip above and its colour bar below. Panels are 384-640 px wide.
+    """
+    cw = int(min(max(width, 384), 640))
+    ch = max(1, int(round(cw * height / width)))
+    cell_h = _EM_LABEL_H + ch + _EM_BAR_H
+    boxes = []
+    for i in range(len(ERROR_PANELS)):
+        r, c = divmod(i, 3)
+        boxes.append((_EM_GAP + c * (cw + _EM_GAP), _EM_TITLE_H + _EM_GAP + r * (cell_h + _EM_GAP) + _EM_LABEL_H,
+                      cw, ch))
+    return 3 * cw + 4 * _EM_GAP, _EM_TITLE_H + 2 * cell_h + 3 * _EM_GAP, boxes
+
+
+def colorize_error(panel: ErrorPanel, lo: float, hi: float) -> np.ndarray:
+    """RGB uint8 image of an error map: viridis on a log scale clipped to [lo, hi], the states in their colours."""
+    import cv2
+
+    v = panel.value.astype(np.float64)
+    ok = (panel.state == _ST_OK) & np.isfinite(v)
+    t = (np.log10(np.clip(np.where(ok, v, lo), lo, hi)) - np.log10(lo)) / (np.log10(hi) - np.log10(lo))
+    rgb = cv2.applyColorMap(np.round(t * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1].copy()
+    for code, (colour, _) in STATE_COLOURS.items():
+        rgb[panel.state == code] = colour
+    rgb[(panel.state == _ST_OK) & ~ok] = STATE_COLOURS[_ST_NONE][0]
+    return rgb
+
+
+def _text(img: np.ndarray, text: str, org: tuple[int, int], scale: float = _FONT_SCALE, colour=_TEXT,
+          max_width: int | None = None) -> int:
+    """Draw ``text`` (shrunk to ``max_width`` if given); returns its width in pixels."""
+    import cv2
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (tw, _), _ = cv2.getTextSize(text, font, scale, 1)
+    if max_width is not None and tw > max_width:
+        scale *= max_width / tw
+        (tw, _), _ = cv2.getTextSize(text, font, scale, 1)
+    cv2.putText(img, text, org, font, scale, colour, 1, cv2.LINE_AA)
+    return tw
+
+
+def _scale_bar(width: int, lo: float, hi: float, log: bool, colormap: int, marks=()) -> np.ndarray:
+    """A horizontal colour bar with tick labels (decades when ``log``); white ticks at ``marks``."""
+    import cv2
+
+    from .overview import BACKGROUND
+
+    img = np.full((_EM_BAR_H, width, 3), BACKGROUND, np.uint8)
+    x0, x1, y0, y1 = 10, width - 10, 6, 16
+    ramp = np.round(np.linspace(0.0, 1.0, x1 - x0) * 255).astype(np.uint8)[None, :]
+    img[y0:y1, x0:x1] = cv2.applyColorMap(ramp, colormap)[0, :, ::-1][None]
+
+    def pos(v: float) -> int:
+        fr = (np.log10(v) - np.log10(lo)) / (np.log10(hi) - np.log10(lo)) if log else (v - lo) / (hi - lo)
+        return x0 + int(round(float(np.clip(fr, 0.0, 1.0)) * (x1 - x0 - 1)))
+
+    if log:
+        ticks = [10.0**k for k in range(int(np.ceil(np.log10(lo) - 1e-9)), int(np.floor(np.log10(hi) + 1e-9)) + 1)]
+    else:
+        ticks = list(np.linspace(lo, hi, 5))
+    for i, v in enumerate(ticks):
+        x = pos(v)
+        cv2.line(img, (x, y1), (x, y1 + 3), (220, 220, 220), 1)
+        label = f"{v:g}" if log else f"{v:.4g}"
+        if log and i == len(ticks) - 1:
+            label = ">=" + label
+        (tw, _), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.4, 1)
+        _text(img, label, (int(np.clip(x - tw // 2, 0, width - tw)), y1 + 15), 0.4)
+    for v in marks:
+        if lo <= v <= hi:
+            x = pos(v)
+            cv2.line(img, (x, 0), (x, y1 - 1), (255, 255, 255), 1)
+    return img
+
+
+def render_error_map(fe: FrameErrors, kind: str, tol: Tolerances | None = None, dataset: str = "") -> np.ndarray:
+    """The error-map picture (RGB uint8) of one eye and frame; ``kind`` ("depth" or "flow") names the check
+    whose worst frame it is. Panels (:func:`error_map_layout`): dataset depth, ray-cast depth (one turbo
+    scale, mm), |depth error| (um), normal angle error (deg), flow endpoint error (px) and left/right
+    disparity mismatch (px), the errors on clipped log scales with the tolerances marked on their bars.
+    """
+    import cv2
+
+    from .overview import BACKGROUND, colorize_depth, depth_range, fit_cell
+
+    tol = tol or Tolerances()
+    H, W = fe.depth.shape
+    sheet_w, sheet_h, boxes = error_map_layout(W, H)
+    sheet = np.full((sheet_h, sheet_w, 3), BACKGROUND, np.uint8)
+    score = fe.scores.get(kind, float("nan"))
+    head = f"{dataset + ': ' if dataset else ''}{fe.eye} eye, frame {fe.frame} - worst frame of the {kind} check"
+    if np.isfinite(score):
+        head += f" (worst metric at {score:.3g} x its tolerance)"
+    _text(sheet, head, (_EM_GAP, 24), 0.6, max_width=sheet_w - 2 * _EM_GAP)
+    x = _EM_GAP
+    for colour, text in list(STATE_COLOURS.values()):
+        cv2.rectangle(sheet, (x, 38), (x + 14, 52), colour, -1)
+        cv2.rectangle(sheet, (x, 38), (x + 14, 52), (200, 200, 200), 1)
+        x += 20 + _text(sheet, text, (x + 20, 50), 0.45) + 16
+    _text(sheet, "| on a bar: tolerance (median, p99)", (x, 50), 0.45)
+
+    lo, hi = depth_range(fe.depth, fe.ref_depth)
+    depth_bar = _scale_bar(boxes[0][2], 1000 * lo, 1000 * hi, False, cv2.COLORMAP_TURBO)
+    valid = float(np.isfinite(fe.depth).mean())
+    cells = [(colorize_depth(fe.depth, lo, hi), "dataset depth [mm]", f"{100 * valid:.1f} % with surface",
+              depth_bar)]
+    if fe.ref_depth is not None:
+        hit = float(np.isfinite(fe.ref_depth).mean())
+        cells.append((colorize_depth(fe.ref_depth, lo, hi), "ray-cast depth (scene mesh) [mm]",
+                      f"{100 * hit:.1f} % hit", depth_bar))
+    else:
+        cells.append((None, "ray-cast depth", "no scene mesh", None))
+    marks = {"depth": (1000 * tol.depth_median_mm, 1000 * tol.depth_p99_mm),
+             "normals": (tol.normal_median_deg, tol.normal_p99_deg),
+             "flow": (tol.flow_median_px, tol.flow_p99_px), "stereo": (tol.lr_median_px, tol.lr_threshold_px)}
+    missing = {"depth": "no scene mesh", "normals": "no normals or no scene mesh", "flow": "no flow to check",
+               "stereo": "other eye missing"}
+    for key in ERROR_PANELS[2:]:
+        panel = fe.panels.get(key)
+        unit, elo, ehi = ERROR_SCALES[key]
+        if panel is None:
+            cells.append((None, key, missing[key], None))
+            continue
+        n_one = int((panel.state == _ST_ONE).sum())
+        note = panel.note + (f"; {n_one} px in one only" if n_one else "")
+        cells.append((colorize_error(panel, elo, ehi), f"{panel.title} [{unit}, log]", note,
+                      _scale_bar(boxes[0][2], elo, ehi, True, cv2.COLORMAP_VIRIDIS, marks[key])))
+    for (x, y, w, h), (img, title, note, bar) in zip(boxes, cells, strict=True):
+        _text(sheet, title, (x + 2, y - _EM_LABEL_H + 16), max_width=w - 4)
+        _text(sheet, note, (x + 2, y - 8), 0.42, (200, 200, 200), max_width=w - 4)
+        if img is None:
+            sheet[y:y + h, x:x + w] = (45, 45, 45)
+            _text(sheet, "not available", (x + 10, y + h // 2), 0.55)
+        else:
+            sheet[y:y + h, x:x + w] = fit_cell(img, w, h)
+        if bar is not None:
+            sheet[y + h:y + h + _EM_BAR_H, x:x + w] = bar
+    return sheet
+
+
+def _write_error_maps(out_dir: Path, keep: dict, tol: Tolerances, dataset: str) -> list[str]:
+    """Write the kept worst frames' pictures (atomically); returns their paths."""
+    import cv2
+
+    from .atomic import atomic_path
+
+    written = []
+    for eye in EYES:
+        depth_fe, flow_fe = keep.get(("depth", eye)), keep.get(("flow", eye))
+        jobs = [("depth", depth_fe)] if depth_fe is not None else []
+        if flow_fe is not None and (depth_fe is None or flow_fe.frame != depth_fe.frame):
+            jobs.append(("flow", flow_fe))
+        for kind, fe in jobs:
+            path = out_dir / f"{kind}_{eye}_frame{fe.frame:06d}.png"
+            img = render_error_map(fe, kind, tol, dataset)
+            with atomic_path(path) as tmp:
+                if not cv2.imwrite(str(tmp), np.ascontiguousarray(img[..., ::-1])):
+                    raise UserError(f"{path}: could not write the error map")
+            written.append(str(path))
+    return written
 
 
 # ------------------------------------------------------------------------------------------------ report
@@ -771,6 +1100,10 @@ def format_report(report: VerifyReport, max_problems: int = 20) -> str:
         out += [f"  {p}" for p in report.problems[:max_problems]]
         if len(report.problems) > max_problems:
             out.append(f"  ... and {len(report.problems) - max_problems} more")
+    if report.error_maps:
+        out.append("")
+        out.append(f"error maps ({len(report.error_maps)}):")
+        out += [f"  {p}" for p in report.error_maps]
     failed = report.failed
     warns = [r for r in report.results if r.status == "warn"]
     verdict = "PASS" if report.ok else f"FAIL ({len(failed)} failed: " + ", ".join(

@@ -208,3 +208,77 @@ def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
     report = verify_dataset(d, progress=False)
     shift = [r for r in report.results if r.check == "depth" and "shift" in r.metric and r.eye == "left"]
     assert shift and shift[0].status == "fail" and abs(shift[0].value - np.sqrt(0.5)) < 0.1
+
+
+def _panel(path, key):
+    """The image area of one panel of an error-map PNG (BGR)."""
+    from rgbd2scene.verify import ERROR_PANELS, error_map_layout
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    x, y, w, h = error_map_layout(W, H)[2][ERROR_PANELS.index(key)]
+    return img[y:y + h, x:x + w]
+
+
+def test_error_maps(dataset, tmp_path):
+    from rgbd2scene.verify import ERROR_PANELS, error_map_layout
+
+    clean = verify_dataset(dataset, progress=False, error_maps=tmp_path / "clean")
+    assert clean.ok
+    names = [p.rsplit("/", 1)[-1] for p in clean.error_maps]
+    for eye in ("left", "right"):
+        assert sum(n.startswith(f"depth_{eye}_frame") for n in names) == 1, names
+    assert all(n.endswith(".png") and len(n.split("frame")[1]) == len("000000.png") for n in names)
+    assert sorted(p.name for p in (tmp_path / "clean").iterdir()) == sorted(names)  # no temporary files left
+    assert clean.to_dict()["error_maps"] == clean.error_maps and "error maps (" in format_report(clean)
+    sheet_w, sheet_h, boxes = error_map_layout(W, H)
+    assert len(boxes) == len(ERROR_PANELS) and all(x + w <= sheet_w and y + h <= sheet_h for x, y, w, h in boxes)
+    for p in clean.error_maps:
+        img = cv2.imread(p, cv2.IMREAD_COLOR)
+        assert img is not None and img.shape == (sheet_h, sheet_w, 3), p
+        for key in ERROR_PANELS:  # every panel is drawn, none is the flat "not available" grey
+            assert np.all(_panel(p, key) == 45, axis=-1).mean() < 0.5, (p, key)
+
+    # depth 1 % too far on frame 1 of the left eye only: that frame becomes the left eye's worst depth frame
+    d = corrupt(dataset, tmp_path / "scaled", "left", "depth", lambda a: a * 1.01, frames=[1])
+    bad = verify_dataset(d, progress=False, error_maps=tmp_path / "bad")
+    assert not bad.ok
+    bad_png = tmp_path / "bad" / "depth_left_frame000001.png"
+    assert str(bad_png) in bad.error_maps
+    clean_png = next(p for p in clean.error_maps if "depth_left_" in p)
+    luma = {}
+    for name, png in (("clean", clean_png), ("bad", bad_png)):
+        panel = cv2.cvtColor(_panel(png, "depth"), cv2.COLOR_BGR2GRAY).astype(float)
+        luma[name] = panel.mean()
+        magenta = np.all(_panel(png, "depth") == (255, 0, 255), axis=-1).mean()
+        assert magenta < 0.01, (name, magenta)  # the valid masks agree
+    # viridis on 0.01 um - 1 mm: ~0 error is dark purple, 1 % of ~3 cm (~300 um) is yellow-green
+    assert luma["clean"] < 60 and luma["bad"] > luma["clean"] + 80, luma
+    # the left eye's stereo panel changes too: its surface now lies behind the right eye's (drawn occluded)
+    stereo = {n: cv2.cvtColor(_panel(p, "stereo"), cv2.COLOR_BGR2GRAY).mean() for n, p in
+              (("clean", clean_png), ("bad", bad_png))}
+    assert stereo["bad"] > stereo["clean"] + 30, stereo
+
+
+def test_error_maps_hole_is_magenta(dataset, tmp_path):
+    def hole(a):
+        a = a.copy()
+        a[10:20, 20:40] = np.nan
+        return a
+
+    d = corrupt(dataset, tmp_path / "hole", "right", "depth", hole, frames=[2])
+    report = verify_dataset(d, progress=False, error_maps=tmp_path / "maps")
+    png = tmp_path / "maps" / "depth_right_frame000002.png"
+    assert str(png) in report.error_maps, report.error_maps
+    magenta = np.all(_panel(png, "depth") == (255, 0, 255), axis=-1)  # BGR and RGB magenta alike
+    assert abs(magenta.mean() - 200 / (W * H)) < 0.02, magenta.mean()
+
+
+def test_error_maps_without_mesh(dataset, tmp_path):
+    d = shutil.copytree(dataset, tmp_path / "d")
+    meta = json.loads((d / "dataset.json").read_text())
+    meta["scene"] = {"dir": str(tmp_path / "nowhere")}
+    (d / "dataset.json").write_text(json.dumps(meta))
+    report = verify_dataset(d, progress=False, error_maps=tmp_path / "maps")
+    names = sorted(p.rsplit("/", 1)[-1] for p in report.error_maps)
+    assert [n.split("_frame")[0] for n in names] == ["flow_left", "flow_right"], names  # no depth check
+    assert np.all(_panel(report.error_maps[0], "depth") == 45, axis=-1).mean() > 0.9  # "not available"
