@@ -203,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="scene folder")
     p.set_defaults(func=cmd_scene)
 
-    from .render_job import DEFAULT_CHUNK, DEFAULT_SAMPLES
+    from .render_job import DEFAULT_CHUNK, DEFAULT_DENOISE, DEFAULT_SAMPLES
 
     p = sub.add_parser("render", help="render the stereo dataset with ground truth (resumable)")
     p.add_argument("scene", help="scene folder made by 'rgbd2scene scene'")
@@ -217,7 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help=f"RGB samples per pixel "
                    f"(default {DEFAULT_SAMPLES})")
     p.add_argument("--no-adaptive", action="store_true", help="turn off adaptive sampling")
-    p.add_argument("--denoise", default="none", help="denoiser: none, oidn, optix (default none)")
+    p.add_argument("--denoise", default=DEFAULT_DENOISE, help=f"denoiser: none, oidn, optix (default "
+                   f"{DEFAULT_DENOISE}; the ground truth never sees it)")
     p.add_argument("--device", default="CPU", help="CPU or GPU (default CPU)")
     p.add_argument("--threads", type=int, default=0, help="render threads (default all cores)")
     p.add_argument("--chunk", type=int, default=DEFAULT_CHUNK, help=f"frames per worker process "
