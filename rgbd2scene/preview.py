@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from . import atomic
+from .camera import Intrinsics
 from .errors import UserError
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".off", ".stl")
@@ -108,9 +109,8 @@ def _set_view(vis, mesh, fov_x_deg: float = 60.0, back_off: float = 0.15) -> Non
 
     ctr = vis.get_view_control()
     params = ctr.convert_to_pinhole_camera_parameters()
-    w, h = params.intrinsic.width, params.intrinsic.height
-    f = (w / 2.0) / np.tan(np.radians(fov_x_deg) / 2.0)
-    params.intrinsic = o3d.camera.PinholeCameraIntrinsic(w, h, f, f, (w - 1) / 2.0, (h - 1) / 2.0)
+    intr = Intrinsics.from_fov(params.intrinsic.width, params.intrinsic.height, fov_x_deg)
+    params.intrinsic = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
     extrinsic = np.eye(4)  # world -> camera
     extrinsic[2, 3] = back_off * float(np.median(np.asarray(mesh.vertices)[:, 2]))
     params.extrinsic = extrinsic
