@@ -337,6 +337,20 @@ def quality_table(result: dict) -> str:
     return "\n".join(lines)
 
 
+def default_note(rows: list[dict], pick: dict | None, default: Setting) -> str:
+    """How the library default compares with the pick (same images and time within 10 %: a tie)."""
+    if pick is not None and pick["setting"] == default:
+        return "the library default"
+    row = next((r for r in rows if r["setting"] == default and r["error"] is None), None)
+    if row is None:
+        return f"the library default ({default.label}) was not measured"
+    text = f"the library default ({default.label}): {row['seconds']:.2f} s, {row['psnr']:.2f} dB"
+    same_images = pick is not None and all(row[k] == pick[k] for k in ("psnr", "ssim", "detail"))
+    if same_images and row["seconds"] <= 1.1 * pick["seconds"]:
+        text += ", the same images (identical scores) within 10 % of the time: a tie"
+    return text
+
+
 def detail_note(rows: list[dict]) -> str:
     """One sentence: the fine texture the denoised and the undenoised candidates keep."""
     spans = []
@@ -503,8 +517,7 @@ def main(argv: list[str] | None = None) -> int:
         pick = q["pick"]
         pick_text = (f"fastest setting reaching it: **{pick['setting'].label}** ({pick['seconds']:.2f} s per stereo "
                      f"frame)" if pick else "no candidate reaches it")
-        same = ("the library default" if pick and pick["setting"] == default
-                else f"the library default is {default.label}")
+        same = default_note(q["rows"], pick, default)
         summary = (f"Target: PSNR of {BASELINE.label} - {TARGET_MARGIN_DB} dB = **{q['target']:.2f} dB** (and "
                    f"SSIM at least that render's); {pick_text}; {same}. {detail_note(q['rows'])} Reference "
                    f"render: {q['reference_s']:.1f} s per stereo frame.")

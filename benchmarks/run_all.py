@@ -1,4 +1,8 @@
-"""``make bench``: run every benchmark in turn (each prints its figures and settings)."""
+"""``make bench``: run every benchmark in turn (each prints its figures and settings).
+
+``--quick`` is passed to the benchmarks that have a quick mode; other arguments are not forwarded
+(each benchmark has its own options: run it directly for those).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +12,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 BENCHMARKS = ["bench_mesh.py", "bench_fill.py", "bench_render.py"]
+HAS_QUICK = {"bench_fill.py", "bench_render.py"}
 
 if __name__ == "__main__":
     status = 0
@@ -15,5 +20,6 @@ if __name__ == "__main__":
         if not (HERE / name).is_file():
             continue
         print(f"\n=== {name} ===", flush=True)
-        status |= subprocess.run([sys.executable, str(HERE / name), *sys.argv[1:]]).returncode
+        quick = ["--quick"] if "--quick" in sys.argv[1:] and name in HAS_QUICK else []
+        status |= subprocess.run([sys.executable, str(HERE / name), *quick]).returncode
     sys.exit(status)

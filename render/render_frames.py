@@ -27,9 +27,9 @@ Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, 
 The passes become the section-3 maps in :func:`rgbd2scene.groundtruth.gt_from_passes` and are written
 by :mod:`rgbd2scene.dataset` (atomic). Temporary files live in ``DATASET/.work`` and are removed.
 
-Cost (2 cores, 512x256, 300k-vertex mesh, 16 spp): RGB 7.1 s per stereo frame with the wet-tissue
-material, 2.4 s with the unlit as-captured one; the ground truth adds 0.15-0.35 s (data render with
-its BVH rebuilds, EXR read, conversion, npz). To keep it there: all RGB renders of a chunk run first,
+Cost (2 cores, 512x256, the bundled sample's 307k-vertex mesh, wet-tissue material, defaults 1 spp + OIDN):
+RGB about 1.8 s per stereo frame; the ground truth adds about 0.16 s (data render with its BVH rebuilds,
+EXR read, conversion, npz): see benchmarks/results/render.md. To keep it there: all RGB renders of a chunk run first,
 then all data renders (switching configuration per frame made Cycles rebuild its scene twice per
 frame), persistent data is on, settings are only assigned when they change, and frame i's passes are
 converted and compressed in a thread while frame i+1's data render runs.
@@ -55,6 +55,7 @@ from rgbd2scene.camera import Intrinsics
 from rgbd2scene.cli import parse_size
 from rgbd2scene.conventions import opencv_pose_from_blender
 from rgbd2scene.groundtruth import MAPS, gt_from_passes, parse_maps, passes_needed
+from rgbd2scene.render_job import DEFAULT_DENOISE, DEFAULT_SAMPLES
 from rgbd2scene.rig import StereoRig
 from rgbd2scene.scene import SceneDescription
 
@@ -350,9 +351,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frames in the whole dataset (its last frame has NaN forward flow); default: "
                         "dataset.json's, else the path's")
     p.add_argument("--size", type=parse_size, default=None, help="WxH (default: the scene's)")
-    p.add_argument("--samples", type=int, default=16, help="RGB samples per pixel (default 16)")
+    p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
+                   help=f"RGB samples per pixel (default {DEFAULT_SAMPLES})")
     p.add_argument("--no-adaptive", action="store_true", help="turn adaptive sampling off")
-    p.add_argument("--denoise", default="none", choices=sorted(DENOISERS), help="RGB denoiser (default none)")
+    p.add_argument("--denoise", default=DEFAULT_DENOISE, choices=sorted(DENOISERS),
+                   help=f"RGB denoiser (default {DEFAULT_DENOISE})")
     p.add_argument("--gt", default="all", help=f"all, none or a comma list of {', '.join(MAPS)}, flow")
     p.add_argument("--device", default="CPU", choices=("CPU", "GPU", "cpu", "gpu"))
     p.add_argument("--seed", type=int, default=0, help="Cycles seed (animated per frame)")
