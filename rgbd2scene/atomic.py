@@ -70,11 +70,6 @@ def write_npy(path: str | Path, array: np.ndarray) -> None:
         np.save(f, array)
 
 
-def write_npz(path: str | Path, compressed: bool = True, **arrays) -> None:
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        (np.savez_compressed if compressed else np.savez)(f, **arrays)
-
-
 def _json_default(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()

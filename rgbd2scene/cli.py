@@ -96,8 +96,9 @@ def cmd_mesh(args) -> int:
 def _add_scene_args(p: argparse.ArgumentParser) -> None:
     from .path import PATH_KINDS
     from .scene import MATERIALS
+    from .scenebuild import SceneOptions
 
-    d = __import__("rgbd2scene.scenebuild", fromlist=["SceneOptions"]).SceneOptions()
+    d = SceneOptions()  # the defaults shown in --help
     g = p.add_argument_group("scene")
     g.add_argument("--mesh-dir", help="build from a folder made by 'rgbd2scene mesh' instead of --rgb/--depth")
     g.add_argument("--size", type=parse_size, default=d.size, help="endoscope image size WxH (default 512x256)")
@@ -133,7 +134,6 @@ def cmd_scene(args) -> int:
     if args.mesh_dir:
         mesh, record = load_mesh_folder(args.mesh_dir, out)
     elif args.rgb and args.depth:
-        (out / "scene.json").unlink(missing_ok=True)
         recon = reconstruct(_load_capture(args), _mesh_options(args))
         write_mesh_folder(out, recon, finalize=False)
         mesh, record = recon.mesh, scene_record(recon)
@@ -167,10 +167,7 @@ def cmd_render(args) -> int:
 def cmd_verify(args) -> int:
     from .verify import format_report, verify_dataset
 
-    root = Path(args.dataset)
-    if not (root / "dataset.json").is_file():
-        raise UserError(f"{root}: not a dataset folder (no dataset.json)")
-    report = verify_dataset(root, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
+    report = verify_dataset(args.dataset, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
     print(format_report(report))
     if args.json:
         from .atomic import write_json

@@ -161,9 +161,12 @@ def read_dataset_json(root: str | Path) -> dict:
     if not path.is_file():
         raise UserError(f"{path}: not found (not a dataset folder made by 'rgbd2scene render')")
     try:
-        return json.loads(path.read_text())
+        meta = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UserError(f"{path}: not readable JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise UserError(f"{path}: must hold a JSON object")
+    return meta
 
 
 def remove_temp_files(root: str | Path, min_age_s: float = 0.0) -> int:

@@ -112,6 +112,8 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
         record = json.loads(record_path.read_text())
     except json.JSONDecodeError as exc:
         raise UserError(f"{record_path}: not valid JSON ({exc})") from None
+    # from here on out_dir is a scene being built: it must not look complete until scene.json is rewritten
+    (out_dir / "scene.json").unlink(missing_ok=True)
     mesh = read_ply(src / "mesh.ply")
     texture_path = src / "mesh_texture.png"
     if texture_path.is_file():

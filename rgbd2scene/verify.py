@@ -24,17 +24,17 @@ normal angle error, flow endpoint error and left/right disparity mismatch (:func
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from . import dataset as ds
 from .conventions import backproject, flow_between_cameras, invert_pose, pixel_rays, project, transform_points
 from .errors import UserError
 
-EYES = ("left", "right")
+EYES = ds.EYES
 CHECKS = ("schema", "coverage", "depth", "normals", "disparity", "flow_fwd", "flow_bwd", "stereo", "occlusion")
 
 #: key -> (dtype, shape with H/W/N placeholders)
@@ -546,15 +546,8 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
     t_start = time.perf_counter()
     tol = tolerances or Tolerances()
     root = Path(dataset_dir)
-    meta_path = root / "dataset.json"
-    if not meta_path.is_file():
-        raise UserError(f"{meta_path}: not found (is {root} a dataset folder?)")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{meta_path}: not readable JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise UserError(f"{meta_path}: must hold a JSON object")
+    meta_path = root / ds.DATASET_JSON
+    meta = ds.read_dataset_json(root)
     try:
         W, H, n_frames = int(meta["width"]), int(meta["height"]), int(meta["frames"])
         baseline = float(meta["baseline"])
@@ -597,7 +590,7 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
     obj_poses: dict[int, list[np.ndarray]] = {}
     for eye in EYES:
         for f in range(n_frames):
-            p = root / eye / "gt" / f"{f:06d}.npz"
+            p = ds.frame_paths(root, eye, f).gt
             try:
                 with np.load(p, allow_pickle=False) as z:
                     poses[(eye, f)] = np.asarray(z["T_world_cam"], dtype=np.float64)
@@ -636,7 +629,7 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
     def neighbour_depth(eye: str, g: int) -> np.ndarray | None:
         if (eye, g) not in depth_cache:
             try:
-                with np.load(root / eye / "gt" / f"{g:06d}.npz", allow_pickle=False) as z:
+                with np.load(ds.frame_paths(root, eye, g).gt, allow_pickle=False) as z:
                     d = z["depth"]
                 depth_cache[(eye, g)] = d if d.shape == (H, W) else None
             except Exception:  # noqa: BLE001 - the file is reported when its own frame is checked
@@ -646,8 +639,7 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
         t_frame = time.perf_counter()
         gts: dict[str, dict | None] = {}
         for eye in EYES:
-            gt_path = root / eye / "gt" / f"{f:06d}.npz"
-            rgb_path = root / eye / "rgb" / f"{f:06d}.png"
+            rgb_path, gt_path = ds.frame_paths(root, eye, f)
             gt = _load_npz(gt_path) if gt_path.is_file() else None
             if gt is None:
                 problems.append(f"frame {f:06d} {eye}: {'unreadable' if gt_path.is_file() else 'missing'} "
