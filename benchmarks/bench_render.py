@@ -6,7 +6,7 @@ Usage: ``python benchmarks/bench_render.py [--quick] [--frames-memory N] [--sect
 The scene is built once per run from the bundled sample (``rgbd2scene scene`` on
 ``data_samples/tissue``, default wet-tissue material, scan path of 100 frames, 512x256 rig) into
 ``bench_out/render/scene``. Every render goes through the project's worker
-(``python -m render.render_frames``, the process :func:`rgbd2scene.render_job.render_dataset` runs per
+(``python -m render.frames``, the process :func:`rgbd2scene.render_job.render_dataset` runs per
 chunk), and the figures come from its progress lines (``frame N done ...s cpu ... rgb ... gt ... rss
 ...``: the numbers ``render_dataset`` averages into its summary), so single frames can be told apart.
 
@@ -62,7 +62,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rgbd2scene import atomic  # noqa: E402
-from rgbd2scene.render_job import DEFAULT_CHUNK, DEFAULT_SAMPLES, render_dataset  # noqa: E402
+from rgbd2scene.stages.render import DEFAULT_CHUNK, DEFAULT_SAMPLES, render_dataset  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
 SAMPLE = ROOT / "data_samples" / "tissue"
@@ -198,7 +198,7 @@ def run_worker(scene: Path, out: Path, setting: Setting, start: int, end: int, f
     """
     if out.exists():
         shutil.rmtree(out)
-    cmd = [sys.executable, "-m", "render.render_frames", str(scene), str(out), "--frames", str(frames),
+    cmd = [sys.executable, "-m", "render.frames", str(scene), str(out), "--frames", str(frames),
            "--start", str(start), "--end", str(end), "--size", f"{size[0]}x{size[1]}", "--gt", gt,
            "--seed", str(seed), "--device", "CPU", *setting.args()]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))

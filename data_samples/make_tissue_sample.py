@@ -39,10 +39,10 @@ from scipy import fft as sp_fft
 from scipy import ndimage
 
 try:
-    from rgbd2scene import atomic
+    from rgbd2scene.files import atomic
 except ImportError:  # run from a checkout without the package installed
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from rgbd2scene import atomic
+    from rgbd2scene.files import atomic
 
 W, H = 640, 480
 FX = FY = 525.0

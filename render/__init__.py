@@ -3,6 +3,6 @@
 The numpy core (``rgbd2scene``) never imports ``bpy``; import this package only where Blender is needed.
 """
 
-from .blender_scene import build_scene, set_intrinsics
+from render.scene_builder import build_scene, set_intrinsics
 
 __all__ = ["build_scene", "set_intrinsics"]

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import RenderError, UserError
+from rgbd2scene.errors import RenderError, UserError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -53,8 +53,8 @@ def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None
 
 
 def _load_capture(args):
-    from .camera import PRESET_DEPTH_SCALE, load_camera_json, preset
-    from .capture import load_capture
+    from rgbd2scene.capture.camera import PRESET_DEPTH_SCALE, load_camera_json, preset
+    from rgbd2scene.capture.readers import load_capture
 
     scale = args.depth_scale
     if args.camera:
@@ -69,7 +69,7 @@ def _load_capture(args):
 
 
 def _mesh_options(args):
-    from .pipeline import MeshOptions
+    from rgbd2scene.reconstruct.pipeline import MeshOptions
 
     return MeshOptions(fill=args.fill, max_relative_jump=args.max_jump, max_grazing_deg=args.max_grazing,
                        smooth=args.smooth, smooth_iterations=args.smooth_iterations,
@@ -77,8 +77,9 @@ def _mesh_options(args):
 
 
 def cmd_mesh(args) -> int:
-    from .atomic import ensure_output_dir
-    from .pipeline import reconstruct, write_mesh_folder
+    from rgbd2scene.files.atomic import ensure_output_dir
+    from rgbd2scene.reconstruct.pipeline import reconstruct
+    from rgbd2scene.stages.mesh import write_mesh_folder
 
     t0 = time.perf_counter()
     ensure_output_dir(args.output)
@@ -94,9 +95,9 @@ def cmd_mesh(args) -> int:
 
 
 def _add_scene_args(p: argparse.ArgumentParser) -> None:
-    from .path import PATH_KINDS
-    from .scene import MATERIALS
-    from .scenebuild import SceneOptions
+    from rgbd2scene.scene.model import MATERIALS
+    from rgbd2scene.scene.path import PATH_KINDS
+    from rgbd2scene.stages.scene import SceneOptions
 
     d = SceneOptions()  # the defaults shown in --help
     g = p.add_argument_group("scene")
@@ -119,10 +120,11 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_scene(args) -> int:
-    from .atomic import ensure_output_dir
-    from .camera import load_camera_json
-    from .pipeline import reconstruct, scene_record, write_mesh_folder
-    from .scenebuild import SceneOptions, build_scene_folder, load_mesh_folder
+    from rgbd2scene.capture.camera import load_camera_json
+    from rgbd2scene.files.atomic import ensure_output_dir
+    from rgbd2scene.reconstruct.pipeline import reconstruct
+    from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
+    from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder
 
     t0 = time.perf_counter()
     out = ensure_output_dir(args.output)
@@ -148,7 +150,7 @@ def cmd_scene(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from .render_job import render_dataset
+    from rgbd2scene.stages.render import render_dataset
 
     summary = render_dataset(args.scene, args.output, frames=args.frames, size=args.size, gt=args.gt,
                              start=args.start, end=args.end, samples=args.samples,
@@ -156,7 +158,7 @@ def cmd_render(args) -> int:
                              chunk=args.chunk, seed=args.seed, threads=args.threads, progress=not args.quiet)
     print(f"rendered {summary['rendered']} frames, skipped {summary['skipped']} already done -> {args.output}")
     if not args.no_sheet:
-        from .contact_sheet import write_frame_sheet
+        from rgbd2scene.pictures.contact_sheet import write_frame_sheet
 
         start, end = summary["range"]
         sheet = write_frame_sheet(args.output, (start + end - 1) // 2, Path(args.output) / "contact_sheet.png")
@@ -165,19 +167,19 @@ def cmd_render(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    from .verify import format_report, verify_dataset
+    from rgbd2scene.verify.driver import format_report, verify_dataset
 
     report = verify_dataset(args.dataset, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
     print(format_report(report))
     if args.json:
-        from .atomic import write_json
+        from rgbd2scene.files.atomic import write_json
 
         write_json(args.json, report.to_dict())
     return 0 if report.ok else 1
 
 
 def cmd_preview(args) -> int:
-    from .preview import preview
+    from rgbd2scene.pictures.preview import preview
 
     out = preview(args.mesh, screenshot=args.screenshot, width=args.width, height=args.height)
     if out:
@@ -200,7 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="scene folder")
     p.set_defaults(func=cmd_scene)
 
-    from .render_job import DEFAULT_CHUNK, DEFAULT_DENOISE, DEFAULT_SAMPLES
+    from rgbd2scene.stages.render import DEFAULT_CHUNK, DEFAULT_DENOISE, DEFAULT_SAMPLES
 
     p = sub.add_parser("render", help="render the stereo dataset with ground truth (resumable)")
     p.add_argument("scene", help="scene folder made by 'rgbd2scene scene'")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import platform
 from importlib import metadata
 
-from . import __version__
+from rgbd2scene import __version__
 
 
 def _version(dist: str) -> str | None:

@@ -19,12 +19,12 @@ bpy = pytest.importorskip("bpy")
 OpenEXR = pytest.importorskip("OpenEXR")
 cv2 = pytest.importorskip("cv2")
 
-from render.blender_scene import build_scene  # noqa: E402
+from render.scene_builder import build_scene  # noqa: E402
 from rgbd2scene import conventions as cv  # noqa: E402
-from rgbd2scene.camera import Intrinsics  # noqa: E402
-from rgbd2scene.path import CameraPath, look_at  # noqa: E402
-from rgbd2scene.rig import StereoRig  # noqa: E402
-from rgbd2scene.scene import Light, SceneDescription  # noqa: E402
+from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
+from rgbd2scene.scene.model import Light, SceneDescription  # noqa: E402
+from rgbd2scene.scene.path import CameraPath, look_at  # noqa: E402
+from rgbd2scene.scene.rig import StereoRig  # noqa: E402
 
 # non-centred principal point and fx != fy on purpose
 INTR = Intrinsics(64, 32, 50.0, 44.0, 27.3, 18.6)

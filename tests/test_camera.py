@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import PRESETS, Intrinsics, load_camera_json, preset
+from rgbd2scene.capture.camera import PRESETS, Intrinsics, load_camera_json, preset
 from rgbd2scene.errors import UserError
 
 

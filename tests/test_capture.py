@@ -2,8 +2,8 @@ import cv2
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import Intrinsics, preset
-from rgbd2scene.capture import load_capture, read_depth, read_rgb
+from rgbd2scene.capture.camera import Intrinsics, preset
+from rgbd2scene.capture.readers import load_capture, read_depth, read_rgb
 from rgbd2scene.errors import UserError
 
 INTR = Intrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)

@@ -10,9 +10,8 @@ import pytest
 
 from rgbd2scene.cli import main
 from rgbd2scene.conventions import backproject
-from rgbd2scene.meshio import read_ply
-
-from .conftest import BUNDLED_SAMPLE
+from rgbd2scene.files.meshio import read_ply
+from tests.conftest import BUNDLED_SAMPLE
 
 SAMPLE_ARGS = ["--rgb", str(BUNDLED_SAMPLE / "rgb.png"), "--depth", str(BUNDLED_SAMPLE / "depth.png"),
                "--camera", str(BUNDLED_SAMPLE / "camera.json")]

@@ -11,16 +11,15 @@ import shutil
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import load_camera_json
-from rgbd2scene.capture import load_capture
+from rgbd2scene.capture.camera import load_camera_json
+from rgbd2scene.capture.readers import load_capture
 from rgbd2scene.cli import main
-from rgbd2scene.path import make_path, path_coverage
-from rgbd2scene.pipeline import reconstruct
-from rgbd2scene.raycast import raycaster
-from rgbd2scene.rig import StereoRig
-from rgbd2scene.scene import SceneDescription
-
-from .conftest import BUNDLED_SAMPLE
+from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.reconstruct.pipeline import reconstruct
+from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.scene.path import make_path, path_coverage
+from rgbd2scene.scene.rig import StereoRig
+from tests.conftest import BUNDLED_SAMPLE
 
 SAMPLE_ARGS = ["--rgb", str(BUNDLED_SAMPLE / "rgb.png"), "--depth", str(BUNDLED_SAMPLE / "depth.png"),
                "--camera", str(BUNDLED_SAMPLE / "camera.json")]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rgbd2scene.errors import UserError
-from rgbd2scene.fill import (
+from rgbd2scene.reconstruct.fill import (
     FILL_METHODS,
     FillResult,
     fill_background,
@@ -255,7 +255,7 @@ def test_inpaint_telea_runs_on_16_bit_codes():
 
 @pytest.mark.skipif(not (SHARED / "tum_office_frame_open3d").is_dir(), reason="../shared/rgbd_samples is absent")
 def test_real_tum_frame():
-    from rgbd2scene.capture import read_depth, read_rgb
+    from rgbd2scene.capture.readers import read_depth, read_rgb
 
     folder = SHARED / "tum_office_frame_open3d"
     depth, _, _ = read_depth(folder / "TUM_depth.png", 5000)

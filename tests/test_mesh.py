@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import PRESETS
+from rgbd2scene.capture.camera import PRESETS
 from rgbd2scene.conventions import project
 from rgbd2scene.errors import UserError
-from rgbd2scene.mesh import Mesh, grid_mesh
+from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
 
 H, W = 24, 32
 FX, FY = 30.0, 28.0
@@ -183,7 +183,7 @@ def test_bad_inputs():
 
 
 def test_tum_frame(shared_samples):
-    from rgbd2scene.capture import read_depth, read_rgb
+    from rgbd2scene.capture.readers import read_depth, read_rgb
 
     folder = shared_samples / "tum_office_frame_open3d"
     depth, _, _ = read_depth(folder / "TUM_depth.png", 5000.0)

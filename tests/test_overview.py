@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rgbd2scene.errors import UserError
-from rgbd2scene.overview import (
+from rgbd2scene.pictures.overview import (
     BACKGROUND,
     colorize_depth,
     depth_range,

@@ -9,8 +9,9 @@ import pytest
 
 from rgbd2scene.conventions import backproject, project, transform_points
 from rgbd2scene.errors import UserError
-from rgbd2scene.mesh import vertex_normals
-from rgbd2scene.path import (
+from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.reconstruct.mesh import vertex_normals
+from rgbd2scene.scene.path import (
     CameraPath,
     load_path_file,
     look_at,
@@ -19,8 +20,7 @@ from rgbd2scene.path import (
     save_path_file,
     waypoint_path,
 )
-from rgbd2scene.raycast import raycaster
-from rgbd2scene.rig import StereoRig
+from rgbd2scene.scene.rig import StereoRig
 
 KINECT_K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
 

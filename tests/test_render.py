@@ -17,13 +17,13 @@ import pytest
 from scipy import ndimage
 
 from rgbd2scene import conventions as cv
-from rgbd2scene import dataset as ds
-from rgbd2scene.camera import Intrinsics
+from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import UserError
-from rgbd2scene.groundtruth import MAPS, gt_from_passes, parse_maps
-from rgbd2scene.path import CameraPath
-from rgbd2scene.rig import StereoRig
-from rgbd2scene.scene import Light, SceneDescription, SceneObject
+from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps
+from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
+from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.rig import StereoRig
 
 BASELINE = 0.005
 GT_KEYS = {"depth": ("float32", 2), "disparity": ("float32", 2), "normals": ("float32", 3),
@@ -117,8 +117,8 @@ def test_dataset_layout(tmp_path):
 bpy = pytest.importorskip("bpy")
 pytest.importorskip("OpenEXR")
 
-from render.blender_scene import build_scene, save_blend  # noqa: E402
-from rgbd2scene.render_job import RenderError, render_dataset  # noqa: E402
+from render.scene_builder import build_scene, save_blend  # noqa: E402
+from rgbd2scene.stages.render import RenderError, render_dataset  # noqa: E402
 
 # non-centred principal point and fx != fy on purpose
 INTR_A = Intrinsics(64, 32, 50.0, 44.0, 27.3, 18.6)

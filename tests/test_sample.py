@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import PRESETS, load_camera_json
-from rgbd2scene.capture import load_capture, read_rgb
+from rgbd2scene.capture.camera import PRESETS, load_camera_json
+from rgbd2scene.capture.readers import load_capture, read_rgb
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "data_samples" / "tissue"

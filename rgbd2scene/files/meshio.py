@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_path
-from .errors import UserError
-from .mesh import Mesh
+from rgbd2scene.errors import UserError
+from rgbd2scene.files.atomic import atomic_path
+from rgbd2scene.files.images import write_image
+from rgbd2scene.reconstruct.mesh import Mesh
 
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
-import cv2  # noqa: E402
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
@@ -280,9 +280,10 @@ def _write_obj_files(mesh: Mesh, name: str, obj_path: Path, mtl_path: Path,
         tex = np.asarray(mesh.texture)
         if tex.dtype != np.uint8 or tex.ndim != 3 or tex.shape[2] != 3:
             raise ValueError(f"obj: texture must be uint8 (H, W, 3), got {tex.dtype} {tex.shape}")
-        with atomic_path(tex_path) as tmp:
-            if not cv2.imwrite(str(tmp), np.ascontiguousarray(tex[..., ::-1])):
-                raise UserError(f"{tex_path}: could not write the texture PNG")
+        try:
+            write_image(tex_path, tex)
+        except OSError:
+            raise UserError(f"{tex_path}: could not write the texture PNG") from None
         paths["texture"] = tex_path
     mtl = [f"# rgbd2scene material for {name}.obj", f"newmtl {material}", "Ka 1.000 1.000 1.000",
            "Kd 1.000 1.000 1.000", "Ks 0.000 0.000 0.000", "Ns 0.0", "d 1.0", "illum 1"]

@@ -38,7 +38,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
 def ensure_output_dir(out_dir: str | Path) -> Path:
     """Create ``out_dir`` (and parents) and prove it writable, or raise a one-line ``UserError``."""
-    from .errors import UserError
+    from rgbd2scene.errors import UserError
 
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

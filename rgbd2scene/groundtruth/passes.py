@@ -20,19 +20,17 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from .conventions import disparity_from_depth, flow_from_blender_vector, orient_normals_to_camera, pixel_rays
+from rgbd2scene.conventions import disparity_from_depth, flow_from_blender_vector, orient_normals_to_camera, pixel_rays
+from rgbd2scene.groundtruth.schema import MAPS, surface_mask
 
 #: The per-pixel maps a dataset can hold (the per-frame matrices K, T_world_cam, object_ids and
 #: object_poses are always written with them).
-MAPS = ("depth", "disparity", "normals", "flow_forward", "flow_backward", "segmentation")
 #: Short names accepted by :func:`parse_maps` besides the map names themselves.
 ALIASES = {"flow": ("flow_forward", "flow_backward"), "seg": ("segmentation",), "normal": ("normals",)}
 #: Blender passes each map is computed from (Depth is always needed: it decides where there is surface).
 PASSES_FOR = {"depth": ("depth",), "disparity": ("depth",), "normals": ("depth", "normal"),
               "flow_forward": ("depth", "vector"), "flow_backward": ("depth", "vector"),
               "segmentation": ("depth", "index")}
-#: Depth values at or above this are Blender's "no surface" (it writes 1e10).
-BACKGROUND_DEPTH = 1e9
 
 
 def parse_maps(spec: str | Iterable[str] | None) -> tuple[str, ...]:
@@ -64,13 +62,6 @@ def passes_needed(maps: Iterable[str]) -> set[str]:
     for m in maps:
         out.update(PASSES_FOR[m])
     return out
-
-
-def surface_mask(depth_pass: np.ndarray) -> np.ndarray:
-    """True where the depth pass hit a surface (finite, positive, below Blender's 1e10 background)."""
-    z = np.asarray(depth_pass)
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(z) & (z > 0) & (z < BACKGROUND_DEPTH)
 
 
 def depth_from_pass(depth_pass: np.ndarray) -> np.ndarray:

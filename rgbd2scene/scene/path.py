@@ -63,7 +63,7 @@ _UP = (0.0, -1.0, 0.0)
 
 
 def _fail(where: str, message: str):
-    from .errors import UserError
+    from rgbd2scene.errors import UserError
 
     raise UserError(f"{where}: {message}")
 
@@ -245,7 +245,7 @@ def load_path_file(path) -> CameraPath:
 
 def save_path_file(path, camera_path: CameraPath) -> None:
     """Write a path as a path file with one ``T_world_cam`` waypoint per frame (reloads exactly)."""
-    from .atomic import write_json
+    from rgbd2scene.files.atomic import write_json
 
     write_json(path, {"fps": camera_path.fps, "frames": camera_path.frames, "kind": camera_path.kind,
                       "waypoints": [{"T_world_cam": T.tolist(), "frame": i}
@@ -448,7 +448,7 @@ def path_coverage(vertices, triangles, rig, path: CameraPath, scale: float = 1.0
     ``scale`` < 1 checks at a reduced resolution (faster); ``rc`` is a ready ``raycast.Raycaster``
     (then vertices and triangles are not used).
     """
-    from .raycast import raycaster
+    from rgbd2scene.groundtruth.raycast import raycaster
 
     rc = rc if rc is not None else raycaster(vertices, triangles)
     intr = rig.intrinsics
@@ -489,8 +489,8 @@ def make_path(kind: str, vertices=None, triangles=None, rig=None, frames: int = 
     less than ``min_coverage`` surface, the footprint allowance grows and the path is drawn again.
     ``settings`` records everything (and the coverage reached) to regenerate it.
     """
-    from .errors import UserError
-    from .raycast import raycaster
+    from rgbd2scene.errors import UserError
+    from rgbd2scene.groundtruth.raycast import raycaster
 
     kind = kind.lower()
     if kind not in PATH_KINDS:
@@ -507,7 +507,7 @@ def make_path(kind: str, vertices=None, triangles=None, rig=None, frames: int = 
             return load_path_file(waypoints)
         return waypoint_path(waypoints, frames, fps)
     if rig is None:
-        from .rig import StereoRig
+        from rgbd2scene.scene.rig import StereoRig
 
         rig = StereoRig.endoscope()
     if not (standoff > 0 and np.isfinite(standoff)):

@@ -23,8 +23,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .atomic import atomic_path, write_json
-from .errors import UserError
+from rgbd2scene.errors import UserError
+from rgbd2scene.files.atomic import atomic_path, write_json
+from rgbd2scene.files.images import read_image, write_image
 
 EYES = ("left", "right")
 DATASET_JSON = "dataset.json"
@@ -80,15 +81,10 @@ def frame_done(root: str | Path, index: int, gt: bool = True) -> bool:
 
 def write_rgb(path: str | Path, rgb_uint8: np.ndarray) -> None:
     """8-bit RGB (H, W, 3) -> PNG, atomically (OpenCV writes to a temporary name, then rename)."""
-    import cv2
-
     rgb = np.asarray(rgb_uint8)
-    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] not in (3, 4):
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"rgb must be uint8 (H, W, 3), got {rgb.dtype} {rgb.shape}")
-    bgr = np.ascontiguousarray(rgb[..., [2, 1, 0]])
-    with atomic_path(path, suffix=".png") as tmp:
-        if not cv2.imwrite(str(tmp), bgr):
-            raise OSError(f"{path}: OpenCV could not write the PNG")
+    write_image(path, rgb)
 
 
 def install_file(src: str | Path, dst: str | Path) -> None:
@@ -131,12 +127,9 @@ def read_frame(root: str | Path, eye: str, index: int, rgb: bool = True) -> tupl
     paths = frame_paths(root, eye, index)
     image = None
     if rgb:
-        import cv2
-
-        bgr = cv2.imread(str(paths.rgb), cv2.IMREAD_COLOR)
-        if bgr is None:
+        image = read_image(paths.rgb)
+        if image is None:
             raise UserError(f"{paths.rgb}: missing or unreadable image")
-        image = bgr[..., ::-1].copy()
     gt: dict = {}
     if paths.gt.is_file():
         with np.load(paths.gt) as data:

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .conventions import orient_normals_to_camera, pixel_rays
-from .mesh import vertex_normals
+from rgbd2scene.conventions import orient_normals_to_camera, pixel_rays
+from rgbd2scene.reconstruct.mesh import vertex_normals
 
 _INVALID = np.uint32(0xFFFFFFFF)
 

@@ -50,11 +50,11 @@ import numpy as np
 from mathutils import Matrix
 from scipy.spatial.transform import Rotation
 
-from rgbd2scene.atomic import atomic_path
-from rgbd2scene.camera import Intrinsics
+from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
-from rgbd2scene.path import CameraPath
-from rgbd2scene.scene import Light, SceneDescription
+from rgbd2scene.files.atomic import atomic_path
+from rgbd2scene.scene.model import Light, SceneDescription
+from rgbd2scene.scene.path import CameraPath
 
 TISSUE = "Tissue"
 CAMERA = "Endoscope"

@@ -30,27 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import dataset as ds
-from .conventions import backproject, flow_between_cameras, invert_pose, pixel_rays, project, transform_points
-from .errors import UserError
+from rgbd2scene.conventions import backproject, flow_between_cameras, invert_pose, pixel_rays, project, transform_points
+from rgbd2scene.dataset import layout as ds
+from rgbd2scene.errors import UserError
+from rgbd2scene.files.images import write_image
+from rgbd2scene.groundtruth.schema import BACKGROUND_DEPTH, SCHEMA
 
 EYES = ds.EYES
 CHECKS = ("schema", "coverage", "depth", "normals", "disparity", "flow_fwd", "flow_bwd", "stereo", "occlusion")
 
-#: key -> (dtype, shape with H/W/N placeholders)
-SCHEMA = {
-    "depth": ("float32", ("H", "W")),
-    "disparity": ("float32", ("H", "W")),
-    "normals": ("float32", ("H", "W", 3)),
-    "flow_forward": ("float32", ("H", "W", 2)),
-    "flow_backward": ("float32", ("H", "W", 2)),
-    "segmentation": ("uint16", ("H", "W")),
-    "K": ("float64", (3, 3)),
-    "T_world_cam": ("float64", (4, 4)),
-    "object_ids": ("uint16", ("N",)),
-    "object_poses": ("float64", ("N", 4, 4)),
-}
-OPTIONAL = {"occluded_forward": ("bool", ("H", "W")), "occluded_backward": ("bool", ("H", "W"))}
 
 
 @dataclass
@@ -421,9 +409,10 @@ def _check_schema(col: _Collector, problems: list, eye: str, f: int, gt: dict, m
     issues = []
     bad_keys = set()
     n_obj = None
-    for key, (dtype, shape) in list(SCHEMA.items()) + list(OPTIONAL.items()):
+    for key, spec in SCHEMA.items():
+        dtype, shape = spec.dtype, spec.shape
         if key not in gt:
-            if key in SCHEMA:
+            if not spec.optional:
                 issues.append(f"missing key {key}")
                 bad_keys.add(key)
             continue
@@ -445,11 +434,11 @@ def _check_schema(col: _Collector, problems: list, eye: str, f: int, gt: dict, m
         valid = np.isfinite(depth)
         sentinels = 0
         with np.errstate(invalid="ignore"):
-            sentinels += int(np.sum(valid & ((depth <= 0) | (depth >= 1e9))))
+            sentinels += int(np.sum(valid & ((depth <= 0) | (depth >= BACKGROUND_DEPTH))))
         sentinels += int(np.isinf(depth).sum())
         if sentinels:
-            issues.append(f"depth has {sentinels} sentinel/inf values (0, negative, >= 1e9): use NaN")
-        surface = valid & (depth > 0) & (depth < 1e9)
+            issues.append(f"depth has {sentinels} sentinel/inf values (0, negative, >= {BACKGROUND_DEPTH:g}): use NaN")
+        surface = valid & (depth > 0) & (depth < BACKGROUND_DEPTH)
         mism = []
         for key in ("disparity", "normals", "flow_forward", "flow_backward"):
             a = gt.get(key)
@@ -559,7 +548,7 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
 
     maps_dir = None
     if error_maps is not None:
-        from .atomic import ensure_output_dir
+        from rgbd2scene.files.atomic import ensure_output_dir
 
         maps_dir = ensure_output_dir(error_maps)
     keep: dict[tuple[str, str], FrameErrors] | None = {} if maps_dir is not None else None
@@ -573,7 +562,7 @@ def verify_dataset(dataset_dir, mesh_path=None, tolerances: Tolerances | None = 
         if len(t) == 0:
             mesh_reason = f"{mesh_file}: no triangles"
         else:
-            from .raycast import raycaster
+            from rgbd2scene.groundtruth.raycast import raycaster
 
             rc = raycaster(v, t)
     if rc is None:
@@ -743,7 +732,7 @@ def _frame_checks(col, eye, f, gt, poses, H, W, baseline, last, tol: Tolerances,
     K, T = gt["K"], gt["T_world_cam"]
     depth = gt["depth"].astype(np.float64)
     with np.errstate(invalid="ignore"):
-        surface = np.isfinite(depth) & (depth > 0) & (depth < 1e9)
+        surface = np.isfinite(depth) & (depth > 0) & (depth < BACKGROUND_DEPTH)
     seg = gt.get("segmentation")
     seg = seg if seg is not None and seg.shape == (H, W) else np.zeros((H, W), np.uint16)
     static = ~np.isin(seg, list(moving)) if moving else np.ones((H, W), bool)
@@ -931,7 +920,7 @@ def _scale_bar(width: int, lo: float, hi: float, log: bool, colormap: int, marks
     """A horizontal colour bar with tick labels (decades when ``log``); white ticks at ``marks``."""
     import cv2
 
-    from .overview import BACKGROUND
+    from rgbd2scene.pictures.overview import BACKGROUND
 
     img = np.full((_EM_BAR_H, width, 3), BACKGROUND, np.uint8)
     x0, x1, y0, y1 = 10, width - 10, 6, 16
@@ -969,7 +958,7 @@ def render_error_map(fe: FrameErrors, kind: str, tol: Tolerances | None = None, 
     """
     import cv2
 
-    from .overview import BACKGROUND, colorize_depth, depth_range, fit_cell
+    from rgbd2scene.pictures.overview import BACKGROUND, colorize_depth, depth_range, fit_cell
 
     tol = tol or Tolerances()
     H, W = fe.depth.shape
@@ -1028,9 +1017,7 @@ def render_error_map(fe: FrameErrors, kind: str, tol: Tolerances | None = None, 
 
 def _write_error_maps(out_dir: Path, keep: dict, tol: Tolerances, dataset: str) -> list[str]:
     """Write the kept worst frames' pictures (atomically); returns their paths."""
-    import cv2
 
-    from .atomic import atomic_path
 
     written = []
     for eye in EYES:
@@ -1041,9 +1028,10 @@ def _write_error_maps(out_dir: Path, keep: dict, tol: Tolerances, dataset: str) 
         for kind, fe in jobs:
             path = out_dir / f"{kind}_{eye}_frame{fe.frame:06d}.png"
             img = render_error_map(fe, kind, tol, dataset)
-            with atomic_path(path) as tmp:
-                if not cv2.imwrite(str(tmp), np.ascontiguousarray(img[..., ::-1])):
-                    raise UserError(f"{path}: could not write the error map")
+            try:
+                write_image(path, img)
+            except OSError:
+                raise UserError(f"{path}: could not write the error map") from None
             written.append(str(path))
     return written
 

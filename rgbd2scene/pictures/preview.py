@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import atomic
-from .camera import Intrinsics
-from .errors import UserError
+from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.errors import UserError
+from rgbd2scene.files import atomic
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".off", ".stl")
 BACKGROUND = (0.12, 0.12, 0.13)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Intrinsics
+from rgbd2scene.capture.camera import Intrinsics
 
 #: da Vinci-class stereo endoscope: 5 mm baseline; 512x256 as in the VisionBlender dataset.
 DEFAULT_BASELINE = 0.005

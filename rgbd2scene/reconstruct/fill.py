@@ -64,7 +64,7 @@ from scipy import ndimage as ndi
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
-from .errors import UserError
+from rgbd2scene.errors import UserError
 
 FILL_METHODS = ("auto", "inpaint", "colorization", "biharmonic", "background", "none")
 

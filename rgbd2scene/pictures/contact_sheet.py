@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import atomic
-from . import dataset as ds
-from .overview import BACKGROUND, colorize_depth, depth_range, fit_cell, label_panel
+from rgbd2scene.dataset import layout as ds
+from rgbd2scene.files.images import write_image
+from rgbd2scene.pictures.overview import BACKGROUND, colorize_depth, depth_range, fit_cell, label_panel
 
 CELL_W = 384
 
@@ -81,6 +81,4 @@ def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
 def write_frame_sheet(root: str | Path, frame: int, path: str | Path) -> Path:
     """Write :func:`frame_sheet` as PNG (atomically)."""
     sheet = frame_sheet(root, frame)
-    with atomic.atomic_path(path) as tmp:
-        cv2.imwrite(str(tmp), sheet[..., ::-1])
-    return Path(path)
+    return write_image(path, sheet)

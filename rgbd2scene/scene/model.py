@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from .path import CameraPath
-from .rig import StereoRig
+from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.rig import StereoRig
 
 MATERIALS = ("as_captured", "wet_tissue")
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import Intrinsics
-from .errors import UserError
+from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.errors import UserError
 
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
 import cv2  # noqa: E402  (the EXR switch must be set before cv2 is imported)

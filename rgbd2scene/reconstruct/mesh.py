@@ -18,8 +18,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .conventions import backproject
-from .errors import UserError
+from rgbd2scene.conventions import backproject
+from rgbd2scene.errors import UserError
 
 
 @dataclass

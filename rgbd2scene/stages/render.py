@@ -1,7 +1,7 @@
 """``rgbd2scene render SCENE -o DATASET``: render a scene folder into a stereo dataset (no ``bpy`` here).
 
 :func:`render_dataset` validates its inputs, writes ``DATASET/dataset.json`` first, then runs the Blender
-worker (``python -m render.render_frames``) in fresh processes over bounded chunks of frames, so memory
+worker (``python -m render.frames``) in fresh processes over bounded chunks of frames, so memory
 stays flat however long the sequence. Finished frames (both eyes' PNG and npz present: every file is
 written atomically) are skipped, so re-running the same command resumes. A tqdm bar with ETA follows
 the worker's one-line-per-frame progress on its stdout; a failing worker raises :class:`RenderError`
@@ -20,14 +20,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from . import dataset as ds
-from .atomic import ensure_output_dir
-from .camera import Intrinsics
-from .conventions import CONVENTIONS_VERSION
-from .errors import RenderError, UserError
-from .groundtruth import parse_maps
-from .scene import SceneDescription
-from .versions import software_versions
+from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.conventions import CONVENTIONS_VERSION
+from rgbd2scene.dataset import layout as ds
+from rgbd2scene.errors import RenderError, UserError
+from rgbd2scene.files.atomic import ensure_output_dir
+from rgbd2scene.groundtruth.passes import parse_maps
+from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.versions import software_versions
 
 DENOISERS = ("none", "oidn", "optix")
 DEVICES = ("CPU", "GPU")
@@ -47,7 +47,7 @@ _PROGRESS = re.compile(r"^frame (\d+) (done|skipped|rgb)\b")
 #: completes it takes the rest: about a tenth of the time).
 RGB_SHARE = 0.9
 _NUMBERS = re.compile(r"(\w+) ([0-9.]+)(s|MB)")
-REPO_ROOT = Path(__file__).resolve().parents[1]
+REPO_ROOT = Path(__file__).resolve().parents[2]
 #: Temporary files younger than this may belong to a run over other frames of the same folder: kept.
 TEMP_MIN_AGE_S = 60.0
 
@@ -103,7 +103,7 @@ def load_scene(scene_dir: str | Path, python: str | None = None) -> tuple[Path, 
 
 def _describe_from_blend(scene_dir: Path, python: str | None) -> dict:
     where = str(scene_dir.resolve())
-    cmd = [python or sys.executable, "-m", "render.render_frames", where, where, "--describe"]
+    cmd = [python or sys.executable, "-m", "render.frames", where, where, "--describe"]
     proc = subprocess.run(cmd, capture_output=True, env=_worker_env())
     lines = [t for t in proc.stdout.decode(errors="replace").splitlines() if t.startswith("{")]
     if proc.returncode != 0 or not lines:
@@ -222,7 +222,7 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, frames: int | Non
     todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=with_gt)]
     skipped = (e - s) - len(todo)
     chunks = [todo[i:i + int(chunk)] for i in range(0, len(todo), int(chunk))]
-    base = [python or sys.executable, "-m", "render.render_frames", str(scene_dir.resolve()),
+    base = [python or sys.executable, "-m", "render.frames", str(scene_dir.resolve()),
             str(out.resolve()), "--frames", str(n), "--samples", str(int(samples)),
             "--gt", ",".join(maps) or "none", "--device", device, "--denoise", denoise,
             "--seed", str(int(seed)), "--threads", str(int(threads))]

@@ -14,14 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_json
-from .camera import Intrinsics
-from .errors import UserError
-from .meshio import read_ply
-from .path import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
-from .raycast import raycaster
-from .rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
-from .scene import MATERIALS, Light, SceneDescription, SceneObject
+from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.errors import UserError
+from rgbd2scene.files.atomic import write_json
+from rgbd2scene.files.images import read_image
+from rgbd2scene.files.meshio import read_ply
+from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, SceneObject
+from rgbd2scene.scene.path import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
+from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
 
 
 @dataclass
@@ -75,7 +76,7 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
 
 def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions) -> dict:
     """Build SCENE/scene.blend for ``mesh`` (already written to out_dir) and write scene.json last."""
-    from render.blender_scene import build_scene  # bpy lives in render/
+    from render.scene_builder import build_scene  # bpy lives in render/
 
     t0 = time.perf_counter()
     rc = raycaster(mesh.vertices, mesh.triangles)
@@ -102,7 +103,6 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
 
     When ``out_dir`` differs, the folder's files are copied there so the scene folder stands alone.
     """
-    import cv2
 
     src = Path(mesh_dir)
     record_path = src / "scene.json"
@@ -117,10 +117,9 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
     mesh = read_ply(src / "mesh.ply")
     texture_path = src / "mesh_texture.png"
     if texture_path.is_file():
-        img = cv2.imread(str(texture_path), cv2.IMREAD_COLOR)
-        if img is None:
+        mesh.texture = read_image(texture_path)
+        if mesh.texture is None:
             raise UserError(f"{texture_path}: not a readable texture image")
-        mesh.texture = np.ascontiguousarray(img[..., ::-1])
     if src.resolve() != out_dir.resolve():
         for name in ("mesh.ply", "depth_filled.npy", "mesh.obj", "mesh.mtl", "mesh_texture.png", "overview.png"):
             if (src / name).is_file():

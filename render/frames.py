@@ -1,6 +1,6 @@
 """Render worker: one bounded chunk of frames of a scene folder into a dataset folder (needs ``bpy``).
 
-    python -m render.render_frames SCENE_DIR DATASET_DIR --start S --end E [--size WxH] [--samples N]
+    python -m render.frames SCENE_DIR DATASET_DIR --start S --end E [--size WxH] [--samples N]
         [--gt all|none|depth,normals,...] [--device CPU|GPU] [--denoise none|oidn|optix] [--frames N]
 
 ``rgbd2scene.render_job`` runs it in fresh processes over bounded chunks (Blender grows in memory over
@@ -50,14 +50,14 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene import dataset as ds
-from rgbd2scene.camera import Intrinsics
+from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.cli import parse_size
 from rgbd2scene.conventions import opencv_pose_from_blender
-from rgbd2scene.groundtruth import MAPS, gt_from_passes, parse_maps, passes_needed
-from rgbd2scene.render_job import DEFAULT_DENOISE, DEFAULT_SAMPLES
-from rgbd2scene.rig import StereoRig
-from rgbd2scene.scene import SceneDescription
+from rgbd2scene.dataset import layout as ds
+from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps, passes_needed
+from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.scene.rig import StereoRig
+from rgbd2scene.stages.render import DEFAULT_DENOISE, DEFAULT_SAMPLES
 
 #: Pixel filter width of the data render: small enough that its one sample is the pixel centre.
 DATA_FILTER_WIDTH = 0.01
@@ -147,7 +147,7 @@ class Renderer:
         self.frames = int(frames) if frames else self.description.path.frames
 
         # intrinsics (resized if asked) -> resolution, lens, shift, pixel aspect
-        from render.blender_scene import set_intrinsics
+        from render.scene_builder import set_intrinsics
 
         intr: Intrinsics = self.description.rig.intrinsics
         if size is not None:
@@ -342,7 +342,7 @@ def read_passes(path: Path, wanted) -> dict[str, np.ndarray]:
 # --- main ------------------------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m render.render_frames", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m render.frames", description=__doc__.splitlines()[0])
     p.add_argument("scene_dir", type=Path)
     p.add_argument("dataset_dir", type=Path)
     p.add_argument("--start", type=int, default=0, help="first frame (default 0)")

@@ -15,9 +15,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from . import atomic
-from .errors import UserError
-from .mesh import vertex_normals
+from rgbd2scene.errors import UserError
+from rgbd2scene.files.images import rgb_to_bgr, write_image
+from rgbd2scene.reconstruct.mesh import vertex_normals
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 BACKGROUND = (28, 28, 28)  # RGB
@@ -49,7 +49,7 @@ def colorize_depth(depth: np.ndarray, vmin: float, vmax: float, invalid=(0, 0, 0
     finite = np.isfinite(d)
     t = np.clip((np.where(finite, d, vmin) - vmin) / (vmax - vmin), 0.0, 1.0)
     bgr = cv2.applyColorMap(np.round(t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    rgb = bgr[..., ::-1].copy()
+    rgb = rgb_to_bgr(bgr)
     rgb[~finite] = invalid
     return rgb
 
@@ -244,11 +244,8 @@ def write_overview(
     """
     path = Path(path)
     sheet = make_overview(rgb, raw_depth, filled_depth, mesh_image, title, panel_width)
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(sheet[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 3])
-    if not ok:
-        raise UserError(f"{path}: could not encode the overview image")
     try:
-        atomic.write_bytes(path, buf.tobytes())
+        write_image(path, sheet)
     except OSError as exc:
         raise UserError(f"{path}: cannot write the overview image ({exc.strerror or exc})") from None
     return path

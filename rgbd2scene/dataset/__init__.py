@@ -1,0 +1,24 @@
+"""The dataset folder: its layout (paths, atomic frame files, dataset.json) and a reader for it."""
+
+from rgbd2scene.dataset.layout import (
+    DATASET_JSON,
+    EYES,
+    WORK_DIR,
+    FramePaths,
+    frame_done,
+    frame_name,
+    frame_paths,
+    gt_done,
+    read_dataset_json,
+    read_frame,
+    remove_temp_files,
+    rgb_done,
+    write_dataset_json,
+    write_frame,
+    write_gt,
+)
+from rgbd2scene.dataset.reader import Dataset, ObjectEntry
+
+__all__ = ["DATASET_JSON", "EYES", "WORK_DIR", "Dataset", "FramePaths", "ObjectEntry", "frame_done", "frame_name",
+           "frame_paths", "gt_done", "read_dataset_json", "read_frame", "remove_temp_files", "rgb_done",
+           "write_dataset_json", "write_frame", "write_gt"]

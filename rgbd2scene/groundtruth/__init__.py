@@ -1,0 +1,6 @@
+"""Ground truth: the map schema, raw render passes -> maps, and the ray-casting oracle."""
+
+from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps, passes_needed
+from rgbd2scene.groundtruth.raycast import Raycaster, raycaster
+
+__all__ = ["MAPS", "Raycaster", "gt_from_passes", "parse_maps", "passes_needed", "raycaster"]
