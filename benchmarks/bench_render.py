@@ -5,10 +5,11 @@ Usage: ``python benchmarks/bench_render.py [--quick] [--frames-memory N] [--sect
 
 The scene is built once per run from the bundled sample (``rgbd2scene scene`` on
 ``data_samples/tissue``, default wet-tissue material, scan path of 100 frames, 512x256 rig) into
-``bench_out/render/scene``. Every render goes through the project's worker
-(``python -m render.frames``, the process :func:`rgbd2scene.render_job.render_dataset` runs per
-chunk), and the figures come from its progress lines (``frame N done ...s cpu ... rgb ... gt ... rss
-...``: the numbers ``render_dataset`` averages into its summary), so single frames can be told apart.
+``bench_out/render/scene``. Every render goes through the project's one Blender entry point (a render
+:class:`~rgbd2scene.stages.blender.Task` run by :func:`~rgbd2scene.stages.blender.run_task`, as
+:func:`rgbd2scene.stages.render.render_dataset` does per chunk), and the figures come from its progress
+events (``frame N done ...s cpu ... rgb ... gt ... rss ...``: the numbers ``render_dataset`` averages
+into its summary), so single frames can be told apart.
 
 1. **Quality** (``quality``): a 256-sample, non-adaptive, undenoised reference (another seed, so its
    noise is independent of the candidates') and candidate RGB settings (samples, adaptive sampling,
@@ -42,16 +43,13 @@ writes ``benchmarks/results/render.md``.
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import os
 import platform
-import re
 import shutil
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,8 +59,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rgbd2scene import atomic  # noqa: E402
-from rgbd2scene.stages.render import DEFAULT_CHUNK, DEFAULT_SAMPLES, render_dataset  # noqa: E402
+from rgbd2scene.files import atomic  # noqa: E402
+from rgbd2scene.stages.blender import run_task  # noqa: E402
+from rgbd2scene.stages.render import DEFAULT_CHUNK, RenderOptions, load_scene, render_model, render_task  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
 SAMPLE = ROOT / "data_samples" / "tissue"
@@ -82,8 +81,6 @@ GT_TARGET = 0.15
 #: Figures quoted in the issue for this machine (512x256, 16 samples, 300k-vertex mesh, stereo frame).
 ISSUE_PLAIN_CYCLES_S = 3.7
 ISSUE_VISIONBLENDER_S = 5.6
-_PROGRESS = re.compile(r"^frame (\d+) (rgb|done)\b")
-_NUMBERS = re.compile(r"(\w+) ([0-9.]+)(?:s|MB)")
 
 
 @dataclass(frozen=True)
@@ -102,9 +99,8 @@ class Setting:
     def slug(self) -> str:
         return f"s{self.samples}_{'a' if self.adaptive else 'f'}_{self.denoise}"
 
-    def args(self) -> list[str]:
-        extra = [] if self.adaptive else ["--no-adaptive"]
-        return ["--samples", str(self.samples), "--denoise", self.denoise, *extra]
+    def options(self, **more) -> RenderOptions:
+        return RenderOptions(samples=self.samples, adaptive=self.adaptive, denoise=self.denoise, **more)
 
 
 REFERENCE = Setting(256, False, "none")
@@ -138,18 +134,10 @@ class WorkerRun:
     peak_rss_mb: float = 0.0
 
 
-def _rss_mb(pid: int) -> float:
-    """Resident memory of a process (MB; NaN when ``/proc`` cannot tell)."""
-    try:
-        return int(Path(f"/proc/{pid}/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
-    except (OSError, ValueError, IndexError):
-        return float("nan")
-
-
 def default_setting() -> Setting:
-    """The library's default RGB settings (``DEFAULT_SAMPLES`` and ``render_dataset``'s defaults)."""
-    params = inspect.signature(render_dataset).parameters
-    return Setting(DEFAULT_SAMPLES, bool(params["adaptive"].default), str(params["denoise"].default))
+    """The library's default RGB settings (``RenderOptions``'s defaults)."""
+    d = RenderOptions()
+    return Setting(d.samples, d.adaptive, d.denoise)
 
 
 def build_scene(folder: Path) -> None:
@@ -198,29 +186,20 @@ def run_worker(scene: Path, out: Path, setting: Setting, start: int, end: int, f
     """
     if out.exists():
         shutil.rmtree(out)
-    cmd = [sys.executable, "-m", "render.frames", str(scene), str(out), "--frames", str(frames),
-           "--start", str(start), "--end", str(end), "--size", f"{size[0]}x{size[1]}", "--gt", gt,
-           "--seed", str(seed), "--device", "CPU", *setting.args()]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
-    with tempfile.TemporaryFile() as log:
-        t0 = time.perf_counter()
-        run = WorkerRun(ready_s=float("nan"))
-        with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, cwd=ROOT, env=env) as proc:
-            for line in proc.stdout:
-                if line.startswith("ready"):
-                    run.ready_s = time.perf_counter() - t0
-                elif m := _PROGRESS.match(line):
-                    run.rss_trace.append(_rss_mb(proc.pid))
-                    if m.group(2) == "done":
-                        run.frames[int(m.group(1))] = {k: float(v) for k, v in _NUMBERS.findall(line)}
-            _, status, usage = os.wait4(proc.pid, 0)  # the worker's own peak memory, unlike proc.wait()
-            proc.returncode = os.waitstatus_to_exitcode(status)
-        run.peak_rss_mb = usage.ru_maxrss / 1024.0
-        if proc.returncode != 0:
-            log.seek(0)
-            tail = [t for t in log.read().decode(errors="replace").splitlines()
-                    if t.strip() and not t.lstrip().startswith("Fra:")][-8:]
-            raise RuntimeError(f"worker failed (exit status {proc.returncode}): {' '.join(cmd)}\n" + "\n".join(tail))
+    options = setting.options(size=size, gt=gt, seed=seed, device="CPU").validated()
+    model = render_model(load_scene(scene)[2], options)
+    run = WorkerRun(ready_s=float("nan"))
+
+    def on_event(event) -> None:
+        if event.kind == "ready":
+            run.ready_s = event.stats["start"]
+        elif event.kind in ("rgb", "done"):
+            run.rss_trace.append(event.stats.get("rss", float("nan")))
+            if event.kind == "done":
+                run.frames[event.frame] = event.stats
+
+    result = run_task(render_task(scene, out, model, options, frames, start, end), on_event)
+    run.peak_rss_mb = result.peak_rss_mb
     return run
 
 

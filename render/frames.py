@@ -1,13 +1,11 @@
-"""Render worker: one bounded chunk of frames of a scene folder into a dataset folder (needs ``bpy``).
+"""Render one bounded chunk of frames of a scene folder into a dataset folder (needs ``bpy``).
 
-    python -m render.frames SCENE_DIR DATASET_DIR --start S --end E [--size WxH] [--samples N]
-        [--gt all|none|depth,normals,...] [--device CPU|GPU] [--denoise none|oidn|optix] [--frames N]
-
-``rgbd2scene.render_job`` runs it in fresh processes over bounded chunks (Blender grows in memory over
-long renders); run by hand it does the same work for frames [S, E). Outputs that exist are not rendered
-again (resume). Its stdout carries only progress lines for the parent's progress bar: ``frame 3 rgb
-7.1s cpu 14.2s`` when the images of a frame are written, ``frame 3 done 7.4s cpu ... rgb ... gt ...
-rss ...`` when all its files are, ``frame 3 skipped``; Blender's own chatter goes to stderr.
+The worker (``python -m render.worker TASK.json``, see :mod:`rgbd2scene.stages.blender`) calls
+:func:`render_task` for a ``render`` task: frames [start, end) of the dataset, with the render options and
+the scene model of the task. K, the baseline and every pose written to the npz come from the model
+(float64); the .blend must agree with it (checked when it opens). Outputs that exist are not rendered
+again (resume). Progress goes out as the protocol's lines (``frame 3 rgb ...``, ``frame 3 done ...``,
+``frame 3 skipped``).
 
 Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, pivot LEFT):
 
@@ -25,7 +23,8 @@ Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, 
    the mesh's interpolated normals, like the depth is the mesh's depth.
 
 The passes become the section-3 maps in :func:`rgbd2scene.groundtruth.gt_from_passes` and are written
-by :mod:`rgbd2scene.dataset` (atomic). Temporary files live in ``DATASET/.work`` and are removed.
+by :mod:`rgbd2scene.dataset` (atomic). Temporary files live in the run's own scratch folder
+``DATASET/.work/<run>/`` (locked while the run lives) and are removed.
 
 Cost (2 cores, 512x256, the bundled sample's 307k-vertex mesh, wet-tissue material, defaults 1 spp + OIDN):
 RGB about 1.8 s per stereo frame; the ground truth adds about 0.16 s (data render with its BVH rebuilds,
@@ -37,27 +36,22 @@ converted and compressed in a thread while frame i+1's data render runs.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import os
 import resource
-import sys
 import time
-import traceback
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
-from rgbd2scene.cli import parse_size
-from rgbd2scene.conventions import opencv_pose_from_blender
+from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.dataset import layout as ds
-from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps, passes_needed
+from rgbd2scene.groundtruth.passes import gt_from_passes, passes_needed
+from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
-from rgbd2scene.scene.rig import StereoRig
-from rgbd2scene.stages.render import DEFAULT_DENOISE, DEFAULT_SAMPLES
+from rgbd2scene.stages.blender import Task, frame_line, ready_line
+from rgbd2scene.stages.render import RenderOptions
 
 #: Pixel filter width of the data render: small enough that its one sample is the pixel centre.
 DATA_FILTER_WIDTH = 0.01
@@ -66,26 +60,14 @@ VIEWS = {"left": "_L", "right": "_R"}
 #: Pass name in the EXR channel names (``<ViewLayer>.<pass>.<channel>``) -> our pass key.
 EXR_PASSES = {"depth": ("Depth", "Z"), "normal": ("Normal", "XYZ"), "vector": ("Vector", "XYZW"),
               "index": ("Object Index", "X")}
-DENOISERS = {"none": None, "oidn": "OPENIMAGEDENOISE", "openimagedenoise": "OPENIMAGEDENOISE",
-             "optix": "OPTIX"}
+DENOISERS = {"none": None, "oidn": "OPENIMAGEDENOISE", "optix": "OPTIX"}
+#: How far (matrix entries, metres for translations) the blend's keyed camera may be from the model's pose:
+#: Blender keys in float32 (measured 4e-7).
+POSE_TOLERANCE = 1e-5
 
 
 class WorkerError(RuntimeError):
     pass
-
-
-# --- scene description ---------------------------------------------------------------------------------
-
-def load_description(scene_dir: Path, bpy_scene=None) -> SceneDescription:
-    """The scene's description: ``scene.json["scene"]``, else the blend's ``scene["rgbd2scene"]``."""
-    record_path = scene_dir / "scene.json"
-    if record_path.is_file():
-        record = json.loads(record_path.read_text())
-        if isinstance(record, dict) and isinstance(record.get("scene"), dict):
-            return SceneDescription.from_dict(record["scene"])
-    if bpy_scene is not None and "rgbd2scene" in bpy_scene.keys():
-        return SceneDescription.from_dict(json.loads(bpy_scene["rgbd2scene"]))
-    raise WorkerError(f"{scene_dir}: no scene description in scene.json['scene'] nor in scene.blend")
 
 
 # --- Blender set-up --------------------------------------------------------------------------------------
@@ -131,80 +113,62 @@ def _gt_material(bpy):
 class Renderer:
     """The open scene plus the two render configurations (RGB, data) it switches between."""
 
-    def __init__(self, bpy, scene_dir: Path, out_dir: Path, size, samples: int, adaptive: bool,
-                 denoise: str | None, device: str, seed: int, threads: int, maps: tuple[str, ...],
-                 frames: int | None, persistent_data: bool = True):
+    def __init__(self, bpy, scene_dir: Path, out_dir: Path, description: SceneDescription,
+                 options: RenderOptions, frames: int, scratch: Path):
         self.bpy = bpy
         self.out_dir = out_dir
-        blend = scene_dir / "scene.blend"
+        self.description = description
+        self.frames = int(frames)
+        blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
-        self.description = load_description(scene_dir, scene)
         camera = scene.camera or bpy.data.objects.get("Endoscope")
         if camera is None or camera.type != "CAMERA":
             raise WorkerError(f"{blend}: the scene has no camera")
         self.camera = camera
-        self.frames = int(frames) if frames else self.description.path.frames
 
-        # intrinsics (resized if asked) -> resolution, lens, shift, pixel aspect
+        # intrinsics of the model (already resized by the render stage) -> resolution, lens, shift, aspect
         from render.scene_builder import set_intrinsics
 
-        intr: Intrinsics = self.description.rig.intrinsics
-        if size is not None:
-            intr = intr.resized(*size)
-        set_intrinsics(scene, camera, intr)
-        self.intrinsics = intr
-        self.K = intr.K
-
-        # the stereo pair must be the rectified one of the contract
-        stereo = camera.data.stereo
-        if not scene.render.use_multiview or scene.render.views_format != "STEREO_3D":
-            raise WorkerError(f"{blend}: the scene is not a stereo (multiview STEREO_3D) scene")
-        if stereo.convergence_mode != "PARALLEL" or stereo.pivot != "LEFT":
-            raise WorkerError(f"{blend}: stereo must be PARALLEL with pivot LEFT, found "
-                              f"{stereo.convergence_mode} / {stereo.pivot}")
+        self.rig = description.rig
+        set_intrinsics(scene, camera, self.rig.intrinsics)
+        self.K = self.rig.intrinsics.K
+        self.baseline = self.rig.baseline
+        _check_blend_agrees(scene, camera, description, blend)
         for view in scene.render.views:
             view.use = view.name in VIEWS
-        self.baseline = float(stereo.interocular_distance)
-        if abs(self.baseline - self.description.rig.baseline) > 1e-9:
-            print(f"warning: blend baseline {self.baseline} differs from scene.json "
-                  f"{self.description.rig.baseline}; using the blend's", file=sys.stderr)
-        self.rig = StereoRig(intr, self.baseline)
 
         scene.render.engine = "CYCLES"
         scene.render.use_motion_blur = False  # the Vector pass needs it off
         scene.render.use_file_extension = True
-        # keep Cycles' scene between renders: back-to-back RGB renders of a chunk then skip the BVH build
-        # (sync 0.004 s instead of 0.1-0.2 s per frame on a 300k-vertex mesh); the data render's material
-        # override still makes it rebuild, but less (measured 0.17 vs 0.28 s). Depth, flow and ids come
-        # out bit-identical, normals within 2e-7.
-        scene.render.use_persistent_data = bool(persistent_data)
+        # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the BVH
+        # build (sync 0.004 s instead of 0.1-0.2 s per frame on a 300k-vertex mesh). The data renders turn
+        # it off (configure_data): with it, their normals depended on what the process rendered before
+        # (one float32 step apart between a resumed and an uninterrupted run); fresh, they are identical.
+        scene.render.use_persistent_data = bool(options.persistent_data)
+        # no metadata that changes from run to run (date, render time, host, scratch file name) in the PNGs:
+        # the same scene and settings give the same bytes
+        for attr in dir(scene.render):
+            if attr.startswith("use_stamp"):
+                setattr(scene.render, attr, False)
         scene.render.image_settings.views_format = "INDIVIDUAL"
-        self.device = _set_device(bpy, scene, device)
-        if threads and threads > 0:
+        self.device = _set_device(bpy, scene, options.device)
+        if options.threads and options.threads > 0:
             scene.render.threads_mode = "FIXED"
-            scene.render.threads = int(threads)
-        self.samples, self.adaptive, self.seed = int(samples), bool(adaptive), int(seed)
-        self.denoiser = DENOISERS[(denoise or "none").lower()]
+            scene.render.threads = int(options.threads)
+        self.samples, self.adaptive, self.seed = options.samples, options.adaptive, options.seed
+        self.persistent_data = bool(options.persistent_data)
+        self.denoiser = DENOISERS[options.denoise]
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
-        self.maps = maps
-        self.passes = passes_needed(maps)
-        self.gt_material = _gt_material(bpy) if maps else None
+        self.maps = options.maps
+        self.passes = passes_needed(self.maps)
+        self.gt_material = _gt_material(bpy) if self.maps else None
         self.view_layer = scene.view_layers[0]
         for layer in scene.view_layers[1:]:
             layer.use = False
         self.images_at_start = {img.name for img in bpy.data.images}
-        self.work = out_dir / ds.WORK_DIR
-        self.work.mkdir(parents=True, exist_ok=True)
-        self.tag = f"{os.getpid()}"
-
-        # objects tracked in object_ids / object_poses: the description's, found by pass_index
-        self.tracked = []
-        for obj in self.description.objects:
-            match = [o for o in scene.objects if o.pass_index == obj.id and o.type in ("MESH", "EMPTY")]
-            match = match or [o for o in scene.objects if o.name == obj.name]
-            self.tracked.append((obj.id, match[0] if match else None))
+        self.work = scratch
 
     # -- configurations --
     # Only changed values are assigned: any assignment tags Blender data as updated, and with persistent
@@ -212,7 +176,8 @@ class Renderer:
 
     def configure_rgb(self) -> None:
         sc, cy, vl = self.scene, self.scene.cycles, self.view_layer
-        _apply([(cy, "samples", self.samples), (cy, "use_adaptive_sampling", self.adaptive),
+        _apply([(sc.render, "use_persistent_data", self.persistent_data),
+                (cy, "samples", self.samples), (cy, "use_adaptive_sampling", self.adaptive),
                 (cy, "filter_width", self.rgb_filter_width), (cy, "max_bounces", self.rgb_max_bounces),
                 (cy, "use_denoising", self.denoiser is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
@@ -227,7 +192,8 @@ class Renderer:
 
     def configure_data(self) -> None:
         sc, cy, vl, p = self.scene, self.scene.cycles, self.view_layer, self.passes
-        _apply([(cy, "samples", 1), (cy, "use_adaptive_sampling", False),
+        _apply([(sc.render, "use_persistent_data", False),  # history-independent ground truth (see __init__)
+                (cy, "samples", 1), (cy, "use_adaptive_sampling", False),
                 (cy, "filter_width", DATA_FILTER_WIDTH),
                 (cy, "max_bounces", 0), (cy, "use_denoising", False), (cy, "seed", 0),
                 (cy, "use_animated_seed", False), (vl, "material_override", self.gt_material),
@@ -251,30 +217,19 @@ class Renderer:
 
     # -- one frame --
 
-    def pose_left(self) -> np.ndarray:
-        return opencv_pose_from_blender(np.array(self.camera.matrix_world, dtype=np.float64))
-
-    def object_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        ids, poses = [], []
-        for oid, obj in self.tracked:
-            ids.append(oid)
-            poses.append(np.array(obj.matrix_world, dtype=np.float64) if obj is not None
-                         else np.full((4, 4), np.nan))
-        return np.asarray(ids, np.uint16), np.asarray(poses, np.float64).reshape(-1, 4, 4)
-
     def render_rgb(self, index: int) -> None:
         self.configure_rgb()
-        files = self._render(self.work / f"{self.tag}_{ds.frame_name(index)}_rgb", ".png")
+        files = self._render(self.work / f"{ds.frame_name(index)}_rgb", ".png")
         for eye, src in files.items():
             ds.install_file(src, ds.frame_paths(self.out_dir, eye, index).rgb)
 
     def render_data(self, index: int) -> dict:
-        """The data render of the current frame (Blender side): EXR files, poses, tracked objects."""
+        """The data render of the current frame (Blender side): EXR files; poses and tracked objects from
+        the model."""
         self.configure_data()
-        files = self._render(self.work / f"{self.tag}_{ds.frame_name(index)}_data", ".exr")
-        T_left = self.pose_left()
-        ids, obj_poses = self.object_poses()
-        poses = {"left": T_left, "right": self.rig.right_pose(T_left)}
+        files = self._render(self.work / f"{ds.frame_name(index)}_data", ".exr")
+        poses = {eye: self.description.camera_pose(index, eye) for eye in VIEWS}
+        ids, obj_poses = self.description.tracked_poses(index)
         return {"index": index, "files": files, "poses": poses, "object_ids": ids, "object_poses": obj_poses}
 
     def write_gt(self, job: dict) -> None:
@@ -288,7 +243,7 @@ class Renderer:
                                     first=index == 0, last=index == self.frames - 1,
                                     object_ids=job["object_ids"], object_poses=job["object_poses"],
                                     maps=self.maps)
-                ds.write_gt(ds.frame_paths(self.out_dir, eye, index).gt, gt)
+                ds.write_gt(ds.frame_paths(self.out_dir, eye, index).gt, gt, scratch=self.work)
         finally:
             for path in job["files"].values():
                 path.unlink(missing_ok=True)
@@ -339,32 +294,33 @@ def read_passes(path: Path, wanted) -> dict[str, np.ndarray]:
     return out
 
 
-# --- main ------------------------------------------------------------------------------------------------
+# --- the render task -----------------------------------------------------------------------------------
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m render.frames", description=__doc__.splitlines()[0])
-    p.add_argument("scene_dir", type=Path)
-    p.add_argument("dataset_dir", type=Path)
-    p.add_argument("--start", type=int, default=0, help="first frame (default 0)")
-    p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
-    p.add_argument("--frames", type=int, default=None,
-                   help="frames in the whole dataset (its last frame has NaN forward flow); default: "
-                        "dataset.json's, else the path's")
-    p.add_argument("--size", type=parse_size, default=None, help="WxH (default: the scene's)")
-    p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES,
-                   help=f"RGB samples per pixel (default {DEFAULT_SAMPLES})")
-    p.add_argument("--no-adaptive", action="store_true", help="turn adaptive sampling off")
-    p.add_argument("--denoise", default=DEFAULT_DENOISE, choices=sorted(DENOISERS),
-                   help=f"RGB denoiser (default {DEFAULT_DENOISE})")
-    p.add_argument("--gt", default="all", help=f"all, none or a comma list of {', '.join(MAPS)}, flow")
-    p.add_argument("--device", default="CPU", choices=("CPU", "GPU", "cpu", "gpu"))
-    p.add_argument("--seed", type=int, default=0, help="Cycles seed (animated per frame)")
-    p.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
-    p.add_argument("--no-persistent-data", action="store_true",
-                   help="rebuild Cycles' scene data (BVH) for every render instead of keeping it")
-    p.add_argument("--describe", action="store_true",
-                   help="print the scene description (JSON, one line) on stdout and exit")
-    return p
+def _check_blend_agrees(scene, camera, description: SceneDescription, blend: Path) -> None:
+    """The .blend must be the model's scene: rectified stereo (PARALLEL, pivot LEFT) at the model's baseline,
+    and an object with each part's instance id."""
+    stereo = camera.data.stereo
+    if not scene.render.use_multiview or scene.render.views_format != "STEREO_3D":
+        raise WorkerError(f"{blend}: the scene is not a stereo (multiview STEREO_3D) scene")
+    if stereo.convergence_mode != "PARALLEL" or stereo.pivot != "LEFT":
+        raise WorkerError(f"{blend}: stereo must be PARALLEL with pivot LEFT, found "
+                          f"{stereo.convergence_mode} / {stereo.pivot}")
+    if not math.isclose(stereo.interocular_distance, description.rig.baseline, rel_tol=1e-6):
+        raise WorkerError(f"{blend}: baseline {stereo.interocular_distance} differs from the scene model's "
+                          f"{description.rig.baseline}")
+    ids = {o.pass_index for o in scene.objects if o.type == "MESH"}
+    missing = [p.id for _, p in description.parts() if p.id not in ids]
+    if missing:
+        raise WorkerError(f"{blend}: no object with instance id(s) {missing} of the scene model")
+
+
+def _check_pose(scene, camera, description: SceneDescription, index: int) -> None:
+    """The camera Blender renders from (keyed on its path) is the model's pose at this frame."""
+    expected = blender_pose_from_opencv(description.camera_pose(index))
+    found = np.array(camera.matrix_world, dtype=np.float64)
+    if not np.allclose(found, expected, atol=POSE_TOLERANCE):
+        raise WorkerError(f"frame {index}: the blend's camera pose differs from the scene model's by "
+                          f"{np.abs(found - expected).max():.2e} (> {POSE_TOLERANCE})")
 
 
 def _rss_mb() -> float:
@@ -380,44 +336,23 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    # stdout is the progress channel: keep it for our lines and send everything else (Blender's C-level
-    # prints included) to stderr
-    sys.stdout.flush()
-    progress = os.fdopen(os.dup(1), "w", buffering=1)
-    os.dup2(2, 1)
-
-    def say(line: str) -> None:
-        progress.write(line + "\n")
-        progress.flush()
-
-    try:
-        maps = parse_maps(args.gt)
-        scene_dir, out_dir = args.scene_dir.resolve(), args.dataset_dir.resolve()
-        if not (scene_dir / "scene.blend").is_file():
-            raise WorkerError(f"{scene_dir}: no scene.blend")
-        frames = args.frames
-        if frames is None and (out_dir / ds.DATASET_JSON).is_file():
-            frames = json.loads((out_dir / ds.DATASET_JSON).read_text()).get("frames")
-        t0 = time.perf_counter()
-        import bpy
-
-        if args.describe:
-            bpy.ops.wm.open_mainfile(filepath=str(scene_dir / "scene.blend"))
-            say(json.dumps(load_description(scene_dir, bpy.context.scene).to_dict()))
-            return 0
-
-        renderer = Renderer(bpy, scene_dir, out_dir, args.size, args.samples, not args.no_adaptive,
-                            args.denoise, args.device, args.seed, args.threads, maps, frames,
-                            persistent_data=not args.no_persistent_data)
-        end = renderer.frames if args.end is None else min(args.end, renderer.frames)
-        say(f"ready {time.perf_counter() - t0:.3f}s device {renderer.device}")
-        indices = range(max(args.start, 0), end)
+def render_task(bpy, task: Task, say) -> None:
+    """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
+    t0 = time.perf_counter()
+    scene_dir, out_dir = Path(task.scene_dir), Path(task.dataset_dir)
+    if not (scene_dir / SCENE_BLEND).is_file():
+        raise WorkerError(f"{scene_dir}: no scene.blend")
+    description = SceneDescription.from_dict(task.description)
+    options = RenderOptions(**task.render).validated()
+    frames = int(task.frames or description.frames)
+    with ds.scratch_dir(out_dir) as scratch:
+        renderer = Renderer(bpy, scene_dir, out_dir, description, options, frames, scratch)
+        say(ready_line(time.perf_counter() - t0, renderer.device))
+        indices = range(max(task.start, 0), min(task.end or frames, frames))
         need_rgb = [i for i in indices if not ds.rgb_done(out_dir, i)]
-        need_gt = [i for i in indices if maps and not ds.gt_done(out_dir, i)]
+        need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i)]
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
-            say(f"frame {i} skipped")
+            say(frame_line(i, "skipped"))
         # Two phases: every RGB render of the chunk, then every data render. Switching between the two
         # configurations makes Cycles rebuild its scene (the material override changes the shaders), so
         # alternating them per frame costs ~0.1 s more per frame than running each kind back to back.
@@ -425,14 +360,15 @@ def main(argv: list[str] | None = None) -> int:
         for index in need_rgb:
             t0, c0 = time.perf_counter(), _cpu_s()
             renderer.scene.frame_set(index)
+            _check_pose(renderer.scene, renderer.camera, description, index)
             renderer.render_rgb(index)
             renderer.free_images()
             spent[index] = (time.perf_counter() - t0, _cpu_s() - c0)
+            t_rgb, c_rgb = spent[index]
             if index in need_gt:  # the frame is finished by the data render below
-                say(f"frame {index} rgb {spent[index][0]:.3f}s cpu {spent[index][1]:.3f}s")
+                say(frame_line(index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
             else:
-                say(f"frame {index} done {spent[index][0]:.3f}s cpu {spent[index][1]:.3f}s "
-                    f"rgb {spent[index][0]:.3f}s gt 0.000s rss {_rss_mb():.0f}MB")
+                say(frame_line(index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
         # The data phase is pipelined: frame i's passes are converted and compressed in a thread while
         # Blender renders frame i+1 (the data render leaves a core idle: BVH builds, 1 sample).
         t_mark, c_mark = time.perf_counter(), _cpu_s()
@@ -441,6 +377,7 @@ def main(argv: list[str] | None = None) -> int:
             for index in need_gt + [None]:
                 if index is not None:
                     renderer.scene.frame_set(index)
+                    _check_pose(renderer.scene, renderer.camera, description, index)
                     job = renderer.render_data(index)
                     renderer.free_images()
                     pending.append((index, pool.submit(renderer.write_gt, job)))
@@ -451,22 +388,5 @@ def main(argv: list[str] | None = None) -> int:
                     t_gt, c_gt = now - t_mark, cpu - c_mark  # this frame's share of the phase
                     t_mark, c_mark = now, cpu
                     t_rgb, c_rgb = spent.get(done_index, (0.0, 0.0))
-                    say(f"frame {done_index} done {t_rgb + t_gt:.3f}s cpu {c_rgb + c_gt:.3f}s "
-                        f"rgb {t_rgb:.3f}s gt {t_gt:.3f}s rss {_rss_mb():.0f}MB")
-        try:
-            renderer.work.rmdir()  # only when empty: another worker may still use it
-        except OSError:
-            pass
-        return 0
-    except WorkerError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except Exception:  # noqa: BLE001 - report everything to the parent, which shows the tail
-        traceback.print_exc()
-        return 1
-    finally:
-        progress.close()
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+                    say(frame_line(done_index, "done", t_rgb + t_gt, cpu=c_rgb + c_gt, rgb=t_rgb, gt=t_gt,
+                                   rss=_rss_mb()))

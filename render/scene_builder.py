@@ -53,7 +53,9 @@ from scipy.spatial.transform import Rotation
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
-from rgbd2scene.scene.model import Light, SceneDescription
+from rgbd2scene.files.images import read_image
+from rgbd2scene.files.meshio import read_ply
+from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
 from rgbd2scene.scene.path import CameraPath
 
 TISSUE = "Tissue"
@@ -67,26 +69,24 @@ SCENE_PROPERTY = "rgbd2scene"
 TEXTURE_INTERPOLATION = "Linear"
 
 
-def build_scene(description: SceneDescription, mesh, blend_path: str | Path | None = None, *,
+def build_scene(description: SceneDescription, scene_dir: str | Path, blend_path: str | Path | None = None, *,
                 samples: int = 16, ambient: float = 0.0) -> None:
-    """Reset Blender to an empty scene, build ``description`` with ``mesh`` and save it to ``blend_path``.
+    """Reset Blender to an empty scene, build ``description`` and save it to ``blend_path``.
 
-    ``mesh`` is any object with ``vertices`` (N,3) metres in the world frame, ``triangles`` (M,3)
-    counter-clockwise seen from the capture camera, ``uvs`` (N,2) and ``texture`` (H,W,3) uint8 RGB;
-    with ``texture`` (or ``uvs``) None, the material reads ``vertex_colors`` (N,3) uint8 RGB instead.
-    ``ambient`` is the strength of a uniform white world light (0: the scope light is the only light).
-    The .blend is written atomically and is self-contained (texture packed).
+    Every object is built by its kind's builder (:data:`BUILDERS`) from the files the model names in
+    ``scene_dir`` (geometry PLYs, textures), and every part is keyed on every frame from the model's
+    poses, like the camera. ``ambient`` is the strength of a uniform white world light (0: the scope
+    light is the only light). The .blend is written atomically and is self-contained (textures packed).
     """
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     _render_defaults(scene, samples)
-
-    use_texture = getattr(mesh, "texture", None) is not None and getattr(mesh, "uvs", None) is not None
-    image = add_texture(mesh.texture) if use_texture else None
-    tissue_id = next((o.id for o in description.objects if o.id == 1), None)
-    if tissue_id is None:
-        tissue_id = description.objects[0].id if description.objects else 1
-    add_tissue(mesh, make_material(description.material, image), tissue_id)
+    for obj in description.objects:
+        builder = BUILDERS.get(obj.kind)
+        if builder is None:
+            raise ValueError(f"object {obj.name!r}: no Blender builder for kind {obj.kind!r} "
+                             f"(known: {', '.join(sorted(BUILDERS))})")
+        builder(scene, obj, Path(scene_dir))
 
     camera = add_stereo_camera(scene, description.rig.intrinsics, description.rig.baseline,
                                description.rig.clip_start, description.rig.clip_end)
@@ -97,6 +97,34 @@ def build_scene(description: SceneDescription, mesh, blend_path: str | Path | No
     scene.frame_set(0)
     if blend_path is not None:
         save_blend(blend_path)
+
+
+# --- objects: one builder per kind ---------------------------------------------------------------------
+
+def build_mesh_object(scene, obj: SceneObject, scene_dir: Path) -> list:
+    """Each part: its geometry file, its material (texture or vertex colours), its instance id as
+    ``pass_index``, keyed on its poses. The tissue's single part is the object "Tissue"."""
+    made = []
+    for part in obj.parts:
+        mesh = read_ply(scene_dir / part.geometry)
+        image = image_file = None
+        if part.material.texture and mesh.uvs is not None:
+            image_file = read_image(scene_dir / part.material.texture)
+            if image_file is None:
+                raise ValueError(f"{scene_dir / part.material.texture}: missing or unreadable texture")
+        tissue = obj.kind == "tissue" and len(obj.parts) == 1
+        name = TISSUE if tissue else f"{obj.name}.{part.name}"
+        if image_file is not None:
+            image = add_texture(image_file, name=TEXTURE if tissue else f"{name}.texture")
+        bobj = add_tissue(mesh, make_material(part.material.kind, image), part.id, name=name)
+        if part.poses is not None:
+            key_poses(scene, bobj, part.poses)
+        made.append(bobj)
+    return made
+
+
+#: Object kind (``SceneObject.kind``) -> the function that builds it into the scene.
+BUILDERS = {"tissue": build_mesh_object, "mesh": build_mesh_object}
 
 
 # --- render settings -------------------------------------------------------------------------------
@@ -255,8 +283,18 @@ def add_stereo_camera(scene, intrinsics: Intrinsics, baseline: float, clip_start
 
 
 def animate_camera(scene, camera, path: CameraPath) -> None:
-    """One linear key per frame 0..F-1 on location and rotation_quaternion; fps from the path."""
+    """The camera keyed on every frame 0..F-1 of its path (Blender axes); frame range and fps from the path."""
     poses = blender_pose_from_opencv(np.asarray(path.T_world_cam, dtype=np.float64).reshape(-1, 4, 4))
+    scene.frame_start, scene.frame_end = 0, len(poses) - 1
+    scene.render.fps = max(1, round(path.fps))
+    scene.render.fps_base = scene.render.fps / path.fps
+    key_poses(scene, camera, poses)
+
+
+def key_poses(scene, obj, matrices: np.ndarray) -> None:
+    """One linear key per frame 0..F-1 on location and rotation_quaternion from rigid ``matrix_world``s
+    (F, 4, 4); quaternions are kept in one hemisphere so no key flips."""
+    poses = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
     count = len(poses)
     locs = poses[:, :3, 3]
     # float64 quaternions (mathutils works in float32: 5e-7 pose error instead of 1e-7), scalar first
@@ -264,20 +302,17 @@ def animate_camera(scene, camera, path: CameraPath) -> None:
     for i in range(1, count):
         if np.dot(quats[i], quats[i - 1]) < 0:  # same hemisphere: no flip between keys
             quats[i] = -quats[i]
-    camera.rotation_mode = "QUATERNION"
-    camera.location, camera.rotation_quaternion = locs[0], quats[0]
-
-    scene.frame_start, scene.frame_end = 0, count - 1
-    scene.render.fps = max(1, round(path.fps))
-    scene.render.fps_base = scene.render.fps / path.fps
-
-    camera.animation_data_create()
-    action = bpy.data.actions.new(f"{camera.name}Path")
-    camera.animation_data.action = action
+    obj.rotation_mode = "QUATERNION"
+    obj.location, obj.rotation_quaternion = locs[0], quats[0]
+    if count == 1:
+        return
+    obj.animation_data_create()
+    action = bpy.data.actions.new(f"{obj.name}Path")
+    obj.animation_data.action = action
     frames = np.arange(count, dtype=np.float64)
     for data_path, values in (("location", locs), ("rotation_quaternion", quats)):
         for index in range(values.shape[1]):
-            fcurve = action.fcurve_ensure_for_datablock(camera, data_path, index=index)
+            fcurve = action.fcurve_ensure_for_datablock(obj, data_path, index=index)
             fcurve.keyframe_points.add(count)
             fcurve.keyframe_points.foreach_set("co", np.stack([frames, values[:, index]], 1).ravel())
             for key in fcurve.keyframe_points:

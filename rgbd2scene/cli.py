@@ -21,13 +21,13 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parse_size(text: str) -> tuple[int, int]:
+    """``WxH`` for argparse (the one definition is :func:`rgbd2scene.stages.render.parse_size`)."""
+    from rgbd2scene.stages.render import parse_size as parse
+
     try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must look like 512x256, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
-    return w, h
+        return parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None:
@@ -150,12 +150,10 @@ def cmd_scene(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from rgbd2scene.stages.render import render_dataset
+    from rgbd2scene.options import from_args
+    from rgbd2scene.stages.render import RenderOptions, render_dataset
 
-    summary = render_dataset(args.scene, args.output, frames=args.frames, size=args.size, gt=args.gt,
-                             start=args.start, end=args.end, samples=args.samples,
-                             adaptive=not args.no_adaptive, denoise=args.denoise, device=args.device,
-                             chunk=args.chunk, seed=args.seed, threads=args.threads, progress=not args.quiet)
+    summary = render_dataset(args.scene, args.output, from_args(RenderOptions, args), progress=not args.quiet)
     print(f"rendered {summary['rendered']} frames, skipped {summary['skipped']} already done -> {args.output}")
     if not args.no_sheet:
         from rgbd2scene.pictures.contact_sheet import write_frame_sheet
@@ -202,27 +200,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="scene folder")
     p.set_defaults(func=cmd_scene)
 
-    from rgbd2scene.stages.render import DEFAULT_CHUNK, DEFAULT_DENOISE, DEFAULT_SAMPLES
+    from rgbd2scene.options import add_arguments
+    from rgbd2scene.stages.render import RenderOptions
 
     p = sub.add_parser("render", help="render the stereo dataset with ground truth (resumable)")
     p.add_argument("scene", help="scene folder made by 'rgbd2scene scene'")
     p.add_argument("-o", "--output", required=True, help="dataset folder")
-    p.add_argument("--frames", type=int, help="dataset length: the first N frames of the path (default all)")
-    p.add_argument("--size", type=parse_size, help="image size WxH (default the scene's; K is rescaled)")
-    p.add_argument("--gt", default="all", help="maps: all, none, or a list of depth,disparity,normals,flow,"
-                   "segmentation (default all)")
-    p.add_argument("--start", type=int, help="first frame of this chunk (default 0)")
-    p.add_argument("--end", type=int, help="end (exclusive) of this chunk (default the last frame)")
-    p.add_argument("--samples", type=int, default=DEFAULT_SAMPLES, help=f"RGB samples per pixel "
-                   f"(default {DEFAULT_SAMPLES})")
-    p.add_argument("--no-adaptive", action="store_true", help="turn off adaptive sampling")
-    p.add_argument("--denoise", default=DEFAULT_DENOISE, help=f"denoiser: none, oidn, optix (default "
-                   f"{DEFAULT_DENOISE}; the ground truth never sees it)")
-    p.add_argument("--device", default="CPU", help="CPU or GPU (default CPU)")
-    p.add_argument("--threads", type=int, default=0, help="render threads (default all cores)")
-    p.add_argument("--chunk", type=int, default=DEFAULT_CHUNK, help=f"frames per worker process "
-                   f"(default {DEFAULT_CHUNK})")
-    p.add_argument("--seed", type=int, default=0, help="Cycles seed (default 0)")
+    add_arguments(p, RenderOptions)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="skip DATASET/contact_sheet.png (middle frame, all maps)")
     p.set_defaults(func=cmd_render)

@@ -22,9 +22,10 @@ cv2 = pytest.importorskip("cv2")
 from render.scene_builder import build_scene  # noqa: E402
 from rgbd2scene import conventions as cv  # noqa: E402
 from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
-from rgbd2scene.scene.model import Light, SceneDescription  # noqa: E402
+from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.path import CameraPath, look_at  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402
+from tests.conftest import write_scene_files  # noqa: E402
 
 # non-centred principal point and fx != fy on purpose
 INTR = Intrinsics(64, 32, 50.0, 44.0, 27.3, 18.6)
@@ -63,7 +64,12 @@ def plane_mesh(point, normal, half_size: float = 0.3) -> SimpleNamespace:
 def describe(poses, intr: Intrinsics = INTR, material: str = "as_captured", light: Light | None = None):
     rig = StereoRig(intr, BASELINE, clip_start=0.001, clip_end=2.0)
     path = CameraPath(np.asarray(poses, float).reshape(-1, 4, 4), fps=25.0, kind="test")
-    return SceneDescription(rig, path, light or Light(), material)
+    return SceneDescription(rig, path, light or Light(), [tissue_object(material)])
+
+
+def build(description, mesh, folder: Path, blend: Path | None = None) -> None:
+    """The scene of ``description`` with ``mesh`` as its tissue, built in this process."""
+    build_scene(description, write_scene_files(folder, mesh, description), blend)
 
 
 def render_eyes(out: Path, exr: bool = True, samples: int = 1) -> dict:
@@ -114,13 +120,13 @@ def angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
 
 # --- tests ---------------------------------------------------------------------------------------------
 
-def test_tissue_mesh_faces_the_capture_camera():
+def test_tissue_mesh_faces_the_capture_camera(tmp_path):
     rng = np.random.default_rng(1)
     u, v = cv.pixel_grid(24, 32)
     depth = 0.05 + 0.0004 * u + 0.0002 * v + 0.002 * np.sin(u / 5.0)
     intr = Intrinsics.from_fov(32, 24, 70.0)
     mesh = grid_mesh(depth, intr, rng.integers(0, 256, (24, 32, 3), dtype=np.uint8))
-    build_scene(describe([np.eye(4)], intr), mesh)
+    build(describe([np.eye(4)], intr), mesh, tmp_path)
 
     obj = bpy.data.objects["Tissue"]
     me = obj.data
@@ -156,8 +162,8 @@ def test_blend_is_self_contained_and_self_describing(tmp_path):
     mesh = grid_mesh(np.full((12, 20), 0.05), intr, texture)
     desc = describe(wobbly_path(4), intr, "wet_tissue")
     blend = tmp_path / "scene" / "scene.blend"
-    build_scene(desc, mesh, blend)
-    assert sorted(p.name for p in blend.parent.iterdir()) == ["scene.blend"]  # no temp files left
+    build(desc, mesh, blend.parent, blend)
+    assert sorted(p.name for p in blend.parent.iterdir()) == ["mesh.ply", "mesh_texture.png", "scene.blend"]
 
     bpy.ops.wm.open_mainfile(filepath=str(blend))
     image = bpy.data.images["Texture"]
@@ -173,10 +179,10 @@ def test_blend_is_self_contained_and_self_describing(tmp_path):
     assert bpy.data.objects["Tissue"].active_material.name == "wet_tissue"
 
 
-def test_camera_and_light_follow_the_path():
+def test_camera_and_light_follow_the_path(tmp_path):
     poses = wobbly_path(12)
     light = Light(kind="spot", power_w=0.3, spot_size_deg=90.0, offset=(0.002, -0.001, 0.0005), radius=0.0004)
-    build_scene(describe(poses, light=light), plane_mesh([0, 0, 0.06], [0, 0, -1]))
+    build(describe(poses, light=light), plane_mesh([0, 0, 0.06], [0, 0, -1]), tmp_path)
     scene = bpy.context.scene
     assert (scene.frame_start, scene.frame_end) == (0, 11)
     assert math.isclose(scene.render.fps / scene.render.fps_base, 25.0)
@@ -208,8 +214,8 @@ def test_camera_and_light_follow_the_path():
         assert angle_deg(R, poses[k][:3, :3]) <= 0.5 * step + 0.1
 
 
-def test_stereo_rig_and_render_defaults():
-    build_scene(describe([np.eye(4)]), plane_mesh([0, 0, 0.06], [0, 0, -1]))
+def test_stereo_rig_and_render_defaults(tmp_path):
+    build(describe([np.eye(4)]), plane_mesh([0, 0, 0.06], [0, 0, -1]), tmp_path)
     scene, cam = bpy.context.scene, bpy.data.objects["Endoscope"].data
     assert scene.render.use_multiview and scene.render.views_format == "STEREO_3D"
     assert [v.name for v in scene.render.views if v.use] == ["left", "right"]
@@ -235,7 +241,7 @@ def test_intrinsics_exact_in_both_eyes(tmp_path, intr):
     T_left = look_at([0.006, -0.004, -0.01], [0.002, 0.003, 0.06]) @ rotation_z(25.0)
     point, normal = np.array([0.0, 0.0, 0.06]), np.array([0.45, -0.3, -1.0])
     normal /= np.linalg.norm(normal)
-    build_scene(describe([T_left], intr), plane_mesh(point, normal))
+    build(describe([T_left], intr), plane_mesh(point, normal), tmp_path / "scene")
     out = render_eyes(tmp_path)
 
     rig = StereoRig(intr, BASELINE)
@@ -262,7 +268,7 @@ def test_as_captured_round_trip_reproduces_texture(tmp_path, source):
     mesh = grid_mesh(depth, intr, texture)
     if source == "vertex_colors":
         mesh.texture = None
-    build_scene(describe([np.eye(4)], intr, "as_captured"), mesh)
+    build(describe([np.eye(4)], intr, "as_captured"), mesh, tmp_path / "scene")
     assert len(bpy.data.images) == (source == "texture")
     left = render_eyes(tmp_path, exr=False)["left"]
     err = np.abs(left.astype(int) - texture.astype(int))[1:-1, 1:-1]  # the border pixels lie on mesh edges
@@ -274,7 +280,7 @@ def test_as_captured_round_trip_reproduces_texture(tmp_path, source):
 
 
 def test_wet_tissue_is_lit_by_the_scope_light(tmp_path):
-    build_scene(describe([np.eye(4)], material="wet_tissue"), plane_mesh([0, 0, 0.05], [0, 0, -1]))
+    build(describe([np.eye(4)], material="wet_tissue"), plane_mesh([0, 0, 0.05], [0, 0, -1]), tmp_path / "scene")
     bpy.data.images["Texture"].pixels.foreach_set(np.tile([0.8, 0.4, 0.35, 1.0], 4).astype(np.float32))
     left = render_eyes(tmp_path, exr=False, samples=4)["left"].astype(float)
     assert left.mean() > 10  # the light reaches the tissue: the image is not black

@@ -1,7 +1,8 @@
 """Rendering a stereo dataset: analytic scenes with known answers, resume, errors.
 
-Scenes are built with ``render.blender_scene.build_scene`` (tiny: a few quads, 64x32, 1-2 samples) and
-rendered through ``rgbd2scene.render_job.render_dataset``, so the worker subprocess path is what is tested.
+Scenes are scene models (tiny: a few quads, 64x32, 1-2 samples) built and rendered through the one
+Blender entry point (``rgbd2scene.stages.blender.run_task`` and ``rgbd2scene.stages.render.render_dataset``),
+so the worker subprocess path is what is tested.
 The ground-truth maps are compared with closed-form ray/plane intersections at pixel centres.
 """
 
@@ -21,7 +22,7 @@ from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import UserError
 from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps
-from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
+from rgbd2scene.scene.model import Light, Material, Part, SceneDescription, SceneObject, tissue_object
 from rgbd2scene.scene.path import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
@@ -107,18 +108,32 @@ def test_dataset_layout(tmp_path):
     np.testing.assert_array_equal(back["depth"], gt["depth"])
     assert not [f for f in tmp_path.rglob(".*")]  # atomic writers leave nothing behind
     (tmp_path / "left" / "gt" / ".000008.x.npz").write_bytes(b"partial")
-    assert ds.remove_temp_files(tmp_path) == 1
+    assert ds.sweep_dead_runs(tmp_path) == 1
+    # scratch folders: a live run's (its lock held) is kept whatever its age, a dead run's is swept
+    dead = tmp_path / ds.WORK_DIR / "host-1-dead"
+    dead.mkdir(parents=True)
+    (dead / "lock").write_text("")
+    (dead / "000003_data_L.exr").write_bytes(b"partial")
+    with ds.scratch_dir(tmp_path) as live:
+        (live / "000004_rgb_L.png").write_bytes(b"partial")
+        assert ds.sweep_dead_runs(tmp_path) == 2  # the dead run's lock file and EXR
+        assert not dead.exists() and (live / "000004_rgb_L.png").is_file()
+    assert not live.exists() and ds.sweep_dead_runs(tmp_path) == 0
+    assert not (tmp_path / ds.WORK_DIR).exists()
     with pytest.raises(ValueError, match="width"):
         ds.write_dataset_json(tmp_path, {"frames": 1})
 
 
 # ================================================================ rendered scenes
 
-bpy = pytest.importorskip("bpy")
+pytest.importorskip("bpy")
 pytest.importorskip("OpenEXR")
 
-from render.scene_builder import build_scene, save_blend  # noqa: E402
+from rgbd2scene.files.meshio import write_ply  # noqa: E402
+from rgbd2scene.reconstruct.mesh import Mesh  # noqa: E402
+from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import RenderError, render_dataset  # noqa: E402
+from tests.conftest import write_scene_files  # noqa: E402
 
 # non-centred principal point and fx != fy on purpose
 INTR_A = Intrinsics(64, 32, 50.0, 44.0, 27.3, 18.6)
@@ -141,29 +156,25 @@ def _quad(corners, texture_value=128) -> SimpleNamespace:
                            texture=np.full((4, 4, 3), texture_value, np.uint8))
 
 
-def _write_scene(folder: Path, description: SceneDescription, mesh, extra=None) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    build_scene(description, mesh, None)
-    if extra is not None:
-        extra()
-    save_blend(folder / "scene.blend")
+def _write_scene(folder: Path, description: SceneDescription, mesh) -> Path:
+    """Scene folder of ``description`` with ``mesh`` as the tissue, built by the Blender worker."""
+    write_scene_files(folder, mesh, description)
+    run_task(Task("build_scene", str(folder), description.to_dict(), blend=str(folder / "scene.blend")))
     record = {"scene": description.to_dict(), "files": {"mesh": "mesh.ply"}, "test": True}
     (folder / "scene.json").write_text(json.dumps(record))
     return folder
 
 
-def _add_occluder():
-    """A small fronto-parallel quad (pass_index 2) in front of the plane, moved by its object transform."""
+def _occluder(folder: Path) -> SceneObject:
+    """A small fronto-parallel quad (id 2) in front of the plane: local coordinates around its origin, which
+    its (static) pose puts at (0, 0, z)."""
     x0, x1 = OCCLUDER["x"]
     y0, y1 = OCCLUDER["y"]
-    me = bpy.data.meshes.new("Instrument")
-    # local coordinates around the origin; the object sits at (0, 0, z)
-    me.from_pydata([(x0, y0, 0.0), (x1, y0, 0.0), (x1, y1, 0.0), (x0, y1, 0.0)], [], [(0, 1, 2, 3)])
-    obj = bpy.data.objects.new("Instrument", me)
-    obj.location = (0.0, 0.0, OCCLUDER["z"])
-    obj.pass_index = OCCLUDER["id"]
-    me.materials.append(bpy.data.materials[0])
-    bpy.context.scene.collection.objects.link(obj)
+    quad = Mesh(vertices=np.array([(x0, y0, 0.0), (x1, y0, 0.0), (x1, y1, 0.0), (x0, y1, 0.0)]),
+                triangles=np.array([[0, 1, 2], [0, 2, 3]], np.int32), vertex_colors=np.full((4, 3), 90, np.uint8))
+    write_ply(folder / "objects" / "2.ply", quad)
+    return SceneObject("instrument", "mesh", [Part(OCCLUDER["id"], "tip", "instrument", "objects/2.ply",
+                                                   Material("as_captured"), _pose(t=(0.0, 0.0, OCCLUDER["z"])))])
 
 
 @pytest.fixture(scope="module")
@@ -171,12 +182,12 @@ def scene_a(tmp_path_factory) -> Path:
     """Fronto-parallel plane at z=0.05 ending at x=0.005, an occluder with id 2; camera moves along +x."""
     poses = [_pose(t=(DX * f, 0.0, 0.0)) for f in range(3)]
     rig = StereoRig(INTR_A, BASELINE, clip_start=0.001, clip_end=2.0)
-    desc = SceneDescription(rig, CameraPath(np.array(poses), fps=25.0, kind="test"), Light(), "as_captured",
-                            objects=[SceneObject(1, "tissue"),
-                                     SceneObject(2, "instrument", "tip", "instrument")])
+    folder = tmp_path_factory.mktemp("scene_a")
+    desc = SceneDescription(rig, CameraPath(np.array(poses), fps=25.0, kind="test"), Light(),
+                            [tissue_object("as_captured"), _occluder(folder)])
     z = PLANE_Z
     plane = _quad([(-0.5, -0.5, z), (-0.5, 0.5, z), (EDGE_X, 0.5, z), (EDGE_X, -0.5, z)])
-    return _write_scene(tmp_path_factory.mktemp("scene_a"), desc, plane, _add_occluder)
+    return _write_scene(folder, desc, plane)
 
 
 def _poses_b() -> np.ndarray:
@@ -193,7 +204,8 @@ def scene_b(tmp_path_factory) -> Path:
     e2 = np.cross(n, e1)
     corners = [TILT_POINT + 0.5 * (sx * e1 + sy * e2) for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
     rig = StereoRig(INTR_B, BASELINE, clip_start=0.001, clip_end=2.0)
-    desc = SceneDescription(rig, CameraPath(_poses_b(), fps=25.0, kind="test"), Light(), "wet_tissue")
+    desc = SceneDescription(rig, CameraPath(_poses_b(), fps=25.0, kind="test"), Light(),
+                            [tissue_object("wet_tissue")])
     return _write_scene(tmp_path_factory.mktemp("scene_b"), desc, _quad(corners))
 
 
@@ -263,7 +275,8 @@ def test_dataset_files_and_json(dataset_a):
         assert key in info, key
     assert (info["width"], info["height"], info["frames"]) == (64, 32, 3)
     assert info["objects"]["2"] == {"name": "instrument", "part": "tip", "class": "instrument",
-                                    "moving": False}
+                                    "moving": False, "kind": "mesh"}
+    assert info["classes"] == {"tissue": 1, "instrument": 2}
     assert info["conventions_version"] == cv.CONVENTIONS_VERSION
     assert info["render"]["gt"] == list(MAPS)
     assert len(info["scene"]["scene_json_sha1"]) == 40
@@ -274,6 +287,22 @@ def test_dataset_files_and_json(dataset_a):
             for key, (dtype, ndim) in GT_KEYS.items():
                 assert gt[key].dtype == dtype and gt[key].ndim == ndim, key
     assert not [p for p in out.rglob(".*")]  # no temporary files or scratch folder left
+
+
+def test_poses_in_the_npz_are_the_scene_models(scene_a, dataset_a):
+    """K, T_world_cam and object_poses are written from the scene model (float64), not read back from
+    Blender: they equal the model's answers exactly, for every frame and eye."""
+    out, _ = dataset_a
+    model = SceneDescription.from_dict(json.loads((scene_a / "scene.json").read_text())["scene"])
+    for f in range(3):
+        ids, poses = model.tracked_poses(f)
+        for eye in ds.EYES:
+            _, gt = _load(out, eye, f)
+            np.testing.assert_array_equal(gt["T_world_cam"], model.camera_pose(f, eye))
+            np.testing.assert_array_equal(gt["K"], model.rig.intrinsics.K)
+            np.testing.assert_array_equal(gt["object_ids"], ids)
+            np.testing.assert_array_equal(gt["object_poses"], poses)
+    assert list(ids) == [1, 2] and poses[1][2, 3] == OCCLUDER["z"]
 
 
 def test_plane_depth_normals_disparity_segmentation(dataset_a):

@@ -11,8 +11,9 @@ from rgbd2scene.dataset.layout import (
     gt_done,
     read_dataset_json,
     read_frame,
-    remove_temp_files,
     rgb_done,
+    scratch_dir,
+    sweep_dead_runs,
     write_dataset_json,
     write_frame,
     write_gt,
@@ -20,5 +21,5 @@ from rgbd2scene.dataset.layout import (
 from rgbd2scene.dataset.reader import Dataset, ObjectEntry
 
 __all__ = ["DATASET_JSON", "EYES", "WORK_DIR", "Dataset", "FramePaths", "ObjectEntry", "frame_done", "frame_name",
-           "frame_paths", "gt_done", "read_dataset_json", "read_frame", "remove_temp_files", "rgb_done",
+           "frame_paths", "gt_done", "read_dataset_json", "read_frame", "scratch_dir", "sweep_dead_runs", "rgb_done",
            "write_dataset_json", "write_frame", "write_gt"]

@@ -14,10 +14,15 @@ four files exist is complete; :func:`frame_done` is what resuming relies on.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
-import time
+import secrets
+import shutil
+import socket
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
 
@@ -94,13 +99,13 @@ def install_file(src: str | Path, dst: str | Path) -> None:
     os.replace(src, dst)
 
 
-def write_gt(path: str | Path, gt: dict, compresslevel: int = NPZ_COMPRESSLEVEL) -> None:
+def write_gt(path: str | Path, gt: dict, compresslevel: int = NPZ_COMPRESSLEVEL, scratch: Path | None = None) -> None:
     """Ground-truth dict -> compressed npz (a standard one: ``np.load`` reads it), atomically.
 
     Deflate level ``compresslevel`` except the maps in :data:`NPZ_STORED`; fixed entry dates, so the same
     arrays give the same bytes.
     """
-    with atomic_path(path, suffix=".npz") as tmp, zipfile.ZipFile(
+    with atomic_path(path, suffix=".npz", tmp_dir=scratch) as tmp, zipfile.ZipFile(
             tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as zf:
         for key, value in gt.items():
             info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
@@ -162,28 +167,66 @@ def read_dataset_json(root: str | Path) -> dict:
     return meta
 
 
-def remove_temp_files(root: str | Path, min_age_s: float = 0.0) -> int:
-    """Remove leftovers of killed runs: atomic writers' ``.NAME.*`` temporaries in the frame folders
-    and files in the render's scratch folder, if older than ``min_age_s`` seconds (so that runs over
-    other frames of the same folder, still going, keep theirs). Returns the number of files removed."""
+@contextlib.contextmanager
+def scratch_dir(root: str | Path) -> Iterator[Path]:
+    """A private scratch folder ``DATASET/.work/<host>-<pid>-<random>/`` for one worker run.
+
+    Every file the run writes is made there and renamed into place when complete, and the run holds an
+    exclusive lock on ``lock`` inside it while alive, so :func:`sweep_dead_runs` can tell a dead run's
+    leftovers (lock free: removed) from a live run's work (lock held: kept), whatever their age.
+    """
+    work = Path(root) / WORK_DIR
+    work.mkdir(parents=True, exist_ok=True)
+    folder = work / f"{socket.gethostname()}-{os.getpid()}-{secrets.token_hex(3)}"
+    folder.mkdir()
+    fd = os.open(folder / "lock", os.O_CREAT | os.O_RDWR, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+        os.close(fd)
+        with contextlib.suppress(OSError):
+            work.rmdir()  # only when no other run's folder is left in it
+
+
+def _alive(folder: Path) -> bool:
+    """Whether a live run holds the scratch folder's lock."""
+    try:
+        fd = os.open(folder / "lock", os.O_RDWR)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)  # closing releases a lock we got
+    return False
+
+
+def sweep_dead_runs(root: str | Path) -> int:
+    """Remove what killed runs left in a dataset folder: scratch folders whose lock is free, and atomic
+    writers' ``.NAME.*`` temporaries beside the frames and dataset.json (live runs make theirs in their
+    scratch folder, so these can only be a dead run's). Returns the number of files removed."""
     root = Path(root)
-    now = time.time()
-    candidates = [p for eye in EYES for kind in ("rgb", "gt") for p in (root / eye / kind).glob(".*")]
-    candidates += list(root.glob(f".{Path(DATASET_JSON).stem}.*"))
-    work = root / WORK_DIR
-    if work.is_dir():
-        candidates += list(work.iterdir())
     count = 0
-    for p in candidates:
-        try:
-            if p.is_file() and now - p.stat().st_mtime >= min_age_s:
+    strays = [p for eye in EYES for kind in ("rgb", "gt") for p in (root / eye / kind).glob(".*")]
+    strays += list(root.glob(f".{Path(DATASET_JSON).stem}.*"))
+    for p in strays:
+        with contextlib.suppress(FileNotFoundError):
+            if p.is_file():
                 p.unlink()
                 count += 1
-        except FileNotFoundError:  # renamed into place or removed meanwhile
-            pass
+    work = root / WORK_DIR
     if work.is_dir():
-        try:
+        for entry in work.iterdir():
+            if entry.is_dir() and not _alive(entry):
+                count += sum(1 for q in entry.rglob("*") if q.is_file())
+                shutil.rmtree(entry, ignore_errors=True)
+            elif entry.is_file():  # a file of the older flat layout
+                entry.unlink(missing_ok=True)
+                count += 1
+        with contextlib.suppress(OSError):
             work.rmdir()  # only when empty
-        except OSError:
-            pass
     return count

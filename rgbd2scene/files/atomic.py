@@ -5,29 +5,33 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import secrets
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-_UMASK = os.umask(0)
-os.umask(_UMASK)
-
 
 @contextlib.contextmanager
-def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; on success it is renamed onto ``path``.
+def atomic_path(path: str | Path, suffix: str | None = None, tmp_dir: str | Path | None = None) -> Iterator[Path]:
+    """Yield a temporary path; on success it is renamed onto ``path``, on error removed.
 
-    ``suffix`` defaults to the target's own suffix, so writers that pick a format from the file
-    extension (OpenCV, Open3D) keep working. On error the temporary file is removed.
+    The temporary file is ``.NAME.<random><suffix>`` next to ``path`` (or in ``tmp_dir``, which must be on
+    the same file system). ``suffix`` defaults to the target's own suffix, so writers that pick a format
+    from the file extension (OpenCV, Open3D) keep working. It is created with mode 0o666 less the
+    process umask, like any new file.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix or path.suffix, dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
-    os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes owner-only files; give the usual permissions
+    folder = Path(tmp_dir) if tmp_dir is not None else path.parent
+    while True:
+        tmp = folder / f".{path.stem}.{secrets.token_hex(4)}{suffix or path.suffix}"
+        try:
+            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+            break
+        except FileExistsError:
+            continue
     try:
         yield tmp
         os.replace(tmp, path)

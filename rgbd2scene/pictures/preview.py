@@ -24,6 +24,7 @@ import numpy as np
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
 from rgbd2scene.files import atomic
+from rgbd2scene.scene import folder
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".off", ".stl")
 BACKGROUND = (0.12, 0.12, 0.13)
@@ -37,10 +38,10 @@ def resolve_mesh_path(path: str | Path) -> Path:
     """The mesh file behind a mesh path or a scene folder; ``UserError`` when there is none."""
     path = Path(path)
     if path.is_dir():
-        for name in ("mesh.obj", "mesh.ply"):
+        for name in (folder.TEXTURED_MESH, folder.MESH):
             if (path / name).is_file():
                 return path / name
-        raise UserError(f"{path}: scene folder has no mesh.obj or mesh.ply")
+        raise UserError(f"{path}: scene folder has no {folder.TEXTURED_MESH} or {folder.MESH}")
     if not path.exists():
         raise UserError(f"{path}: mesh file or scene folder not found")
     if not path.is_file():

@@ -1,17 +1,36 @@
-"""Renderer-independent scene description (what ``scene.json`` records and ``render/`` builds).
+"""The renderer-independent scene model: what ``scene.json`` records, ``render/`` builds and keys from,
+the dataset writer takes poses from and ``verify`` ray-casts (no ``bpy`` here).
 
-Like Kubric, the description knows nothing of Blender: the ``render`` package turns it into a
-``.blend``. Everything needed to rebuild the scene is here.
+Like Kubric's core, the model knows nothing of Blender. It answers "where is everything at frame f" in
+plain numpy (float64):
+
+- the **camera** is the stereo rig on its track (:class:`~rgbd2scene.scene.path.CameraPath`): the
+  left eye's ``T_world_cam`` per frame, the right eye +baseline along the left x axis;
+- every **object** (the tissue surface is one) owns its geometry, material, parts, motion and tracked
+  frames. A **part** is one rigid piece with one instance id (1..65535) in the segmentation maps and a
+  class; its geometry file (PLY, metres, in the part's own frame, relative to the scene folder) is posed
+  by ``T_world_part`` per frame. ``object_ids`` / ``object_poses`` of every frame are
+  :meth:`SceneDescription.tracked_poses`.
+
+Adding an object kind is one entry here (a ``kind`` name the builder registry in ``render/`` knows) and
+one builder function there.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
+import numpy as np
+
+from rgbd2scene.scene import folder
 from rgbd2scene.scene.path import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
+#: Looks of the tissue surface: the texture's colours exactly (unlit), or lit glossy wet tissue.
 MATERIALS = ("as_captured", "wet_tissue")
+TISSUE_ID = 1
+TISSUE_CLASS = "tissue"
+MAX_ID = 65535
 
 
 @dataclass
@@ -25,7 +44,8 @@ class Light:
     radius: float = 0.0005
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {"kind": self.kind, "power_w": self.power_w, "spot_size_deg": self.spot_size_deg,
+                "offset": list(self.offset), "radius": self.radius}
 
     @classmethod
     def from_dict(cls, d: dict) -> Light:
@@ -35,44 +55,215 @@ class Light:
 
 
 @dataclass
-class SceneObject:
-    """An object with an instance id in the segmentation maps (0 is reserved for nothing)."""
+class Material:
+    """How a part looks. ``kind`` names a material builder in ``render/`` (e.g. ``wet_tissue``);
+    ``texture`` is an image file in the scene folder mapped by the geometry's UVs; without it the
+    geometry's vertex colours are used, and without those ``color`` (linear RGB, 0-1)."""
+
+    kind: str = "wet_tissue"
+    texture: str | None = None
+    color: tuple[float, float, float] | None = None
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "texture": self.texture, "color": None if self.color is None else list(self.color)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Material:
+        color = d.get("color")
+        return cls(str(d.get("kind", "wet_tissue")), d.get("texture"), None if color is None else tuple(color))
+
+
+def _poses_array(poses) -> np.ndarray | None:
+    if poses is None:
+        return None
+    a = np.asarray(poses, dtype=np.float64)
+    if a.shape == (4, 4):
+        a = a[None]
+    if a.ndim != 3 or a.shape[1:] != (4, 4) or not np.isfinite(a).all():
+        raise ValueError(f"poses must be finite 4x4 matrices, shape (F, 4, 4); got {a.shape}")
+    return a
+
+
+def _pose_at(poses: np.ndarray | None, frame: int) -> np.ndarray:
+    """The pose of ``frame`` (identity without poses; one pose = static; the last pose after the end)."""
+    if poses is None:
+        return np.eye(4)
+    return poses[min(max(int(frame), 0), len(poses) - 1)].copy()
+
+
+@dataclass
+class Part:
+    """One rigid piece of an object with its own instance id and class.
+
+    ``poses`` are ``T_world_part`` (F, 4, 4) float64, one per frame (a single pose: static); None means
+    the part's frame is the world frame (the reconstructed tissue).
+    """
 
     id: int
     name: str
-    part: str = "surface"
-    cls: str = "tissue"
-    moving: bool = False
+    cls: str
+    geometry: str
+    material: Material = field(default_factory=Material)
+    poses: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.id = int(self.id)
+        if not 1 <= self.id <= MAX_ID:
+            raise ValueError(f"part {self.name!r}: instance id {self.id} is not in 1..{MAX_ID}")
+        self.poses = _poses_array(self.poses)
+
+    def pose_at(self, frame: int) -> np.ndarray:
+        return _pose_at(self.poses, frame)
+
+    @property
+    def moving(self) -> bool:
+        return self.poses is not None and len(self.poses) > 1 and not np.all(self.poses == self.poses[0])
 
     def to_dict(self) -> dict:
-        return {"id": self.id, "name": self.name, "part": self.part, "class": self.cls, "moving": self.moving}
+        return {"id": self.id, "name": self.name, "class": self.cls, "geometry": self.geometry,
+                "material": self.material.to_dict(),
+                "poses": None if self.poses is None else self.poses.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Part:
+        return cls(int(d["id"]), str(d["name"]), str(d.get("class", "")), str(d["geometry"]),
+                   Material.from_dict(d.get("material") or {}), d.get("poses"))
+
+
+@dataclass
+class TrackedFrame:
+    """A named coordinate frame attached to a part: ``T_world_frame = T_world_part @ offset``.
+
+    Its id appears in ``object_ids``/``object_poses`` but never in ``segmentation``.
+    """
+
+    id: int
+    name: str
+    attached_to: str  # name of the part it moves with
+    offset: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def __post_init__(self):
+        self.id = int(self.id)
+        if not 1 <= self.id <= MAX_ID:
+            raise ValueError(f"tracked frame {self.name!r}: id {self.id} is not in 1..{MAX_ID}")
+        self.offset = np.asarray(self.offset, dtype=np.float64).reshape(4, 4)
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "name": self.name, "attached_to": self.attached_to, "offset": self.offset.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrackedFrame:
+        return cls(int(d["id"]), str(d["name"]), str(d["attached_to"]), d.get("offset", np.eye(4)))
+
+
+@dataclass
+class SceneObject:
+    """An object: a ``kind`` (the builder ``render/`` uses), its parts and its tracked frames."""
+
+    name: str
+    kind: str
+    parts: list[Part]
+    tracked_frames: list[TrackedFrame] = field(default_factory=list)
+
+    @property
+    def moving(self) -> bool:
+        return any(p.moving for p in self.parts)
+
+    def part(self, name: str) -> Part:
+        for p in self.parts:
+            if p.name == name:
+                return p
+        raise KeyError(f"object {self.name!r} has no part {name!r}")
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "kind": self.kind, "parts": [p.to_dict() for p in self.parts],
+                "tracked_frames": [t.to_dict() for t in self.tracked_frames]}
 
     @classmethod
     def from_dict(cls, d: dict) -> SceneObject:
-        return cls(int(d["id"]), d["name"], d.get("part", "surface"), d.get("class", "tissue"),
-                   bool(d.get("moving", False)))
+        return cls(str(d["name"]), str(d["kind"]), [Part.from_dict(p) for p in d["parts"]],
+                   [TrackedFrame.from_dict(t) for t in d.get("tracked_frames", [])])
+
+
+def tissue_object(material: str = "wet_tissue", geometry: str = folder.MESH,
+                  texture: str | None = folder.TEXTURE) -> SceneObject:
+    """The reconstructed tissue surface: one part (id 1, class tissue) whose frame is the world frame."""
+    return SceneObject("tissue", "tissue", [Part(TISSUE_ID, "surface", TISSUE_CLASS, geometry,
+                                                 Material(material, texture))])
 
 
 @dataclass
 class SceneDescription:
-    """Stereo rig on a path, light at its tip, the tissue mesh and its look."""
+    """The stereo rig on its camera track, the light at its tip, and the objects (tissue first)."""
 
     rig: StereoRig
     path: CameraPath
     light: Light = field(default_factory=Light)
-    material: str = "wet_tissue"
-    mesh_file: str = "mesh.ply"
-    texture_file: str = "texture.png"
-    objects: list[SceneObject] = field(default_factory=lambda: [SceneObject(1, "tissue")])
+    objects: list[SceneObject] = field(default_factory=lambda: [tissue_object()])
+
+    def __post_init__(self):
+        ids = [p.id for o in self.objects for p in o.parts] + [t.id for o in self.objects for t in o.tracked_frames]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ValueError(f"instance ids used twice: {dup}")
+        for o in self.objects:
+            names = {p.name for p in o.parts}
+            for t in o.tracked_frames:
+                if t.attached_to not in names:
+                    raise ValueError(f"tracked frame {t.name!r} is attached to {t.attached_to!r}, "
+                                     f"not a part of object {o.name!r}")
+
+    @property
+    def frames(self) -> int:
+        return self.path.frames
+
+    def parts(self) -> list[tuple[SceneObject, Part]]:
+        return [(o, p) for o in self.objects for p in o.parts]
+
+    def camera_pose(self, frame: int, eye: str = "left") -> np.ndarray:
+        """T_world_cam (OpenCV axes) of one eye at ``frame``, float64."""
+        T = np.asarray(self.path.T_world_cam[int(frame)], dtype=np.float64)
+        return T.copy() if eye == "left" else self.rig.right_pose(T)
+
+    def tracked_poses(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """``object_ids`` (N,) uint16 and ``object_poses`` (N, 4, 4) float64 at ``frame``: every part, then
+        every tracked frame, in model order."""
+        ids, poses = [], []
+        for _, part in self.parts():
+            ids.append(part.id)
+            poses.append(part.pose_at(frame))
+        for obj in self.objects:
+            for t in obj.tracked_frames:
+                ids.append(t.id)
+                poses.append(obj.part(t.attached_to).pose_at(frame) @ t.offset)
+        return np.asarray(ids, np.uint16), np.asarray(poses, np.float64).reshape(-1, 4, 4)
+
+    def classes(self) -> dict[str, int]:
+        """Class name -> class id (1.. in order of first appearance; 0 is nothing)."""
+        out: dict[str, int] = {}
+        for _, part in self.parts():
+            out.setdefault(part.cls, len(out) + 1)
+        return out
+
+    def object_table(self) -> dict:
+        """dataset.json's ``objects``, ``classes`` and ``tracked_frames`` (CONVENTIONS §3)."""
+        objects = {str(p.id): {"name": o.name, "part": p.name, "class": p.cls, "moving": p.moving, "kind": o.kind}
+                   for o, p in self.parts()}
+        frames = {str(t.id): {"name": t.name, "attached_to": f"{o.name}/{t.attached_to}"}
+                  for o in self.objects for t in o.tracked_frames}
+        return {"objects": objects, "classes": self.classes(), "tracked_frames": frames}
 
     def to_dict(self) -> dict:
-        return {"rig": self.rig.to_dict(), "path": self.path.to_dict(), "light": self.light.to_dict(),
-                "material": self.material, "mesh_file": self.mesh_file, "texture_file": self.texture_file,
-                "objects": [o.to_dict() for o in self.objects]}
+        return {"model_version": 2, "rig": self.rig.to_dict(), "path": self.path.to_dict(),
+                "light": self.light.to_dict(), "objects": [o.to_dict() for o in self.objects]}
 
     @classmethod
     def from_dict(cls, d: dict) -> SceneDescription:
+        objects = d.get("objects", [])
+        if "mesh_file" in d or any("parts" not in o for o in objects):  # model version 1 (one tissue mesh)
+            objects = [tissue_object(d.get("material", "wet_tissue"), d.get("mesh_file", folder.MESH),
+                                     d.get("texture_file", folder.TEXTURE))]
+        else:
+            objects = [SceneObject.from_dict(o) for o in objects]
         return cls(StereoRig.from_dict(d["rig"]), CameraPath.from_dict(d["path"]),
-                   Light.from_dict(d.get("light", {})), d.get("material", "wet_tissue"),
-                   d.get("mesh_file", "mesh.ply"), d.get("texture_file", "texture.png"),
-                   [SceneObject.from_dict(o) for o in d.get("objects", [])])
+                   Light.from_dict(d.get("light", {})), objects)

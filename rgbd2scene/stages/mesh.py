@@ -15,6 +15,7 @@ from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.files.atomic import ensure_output_dir, write_json, write_npy
 from rgbd2scene.files.meshio import write_ply, write_textured_obj
 from rgbd2scene.reconstruct.pipeline import Reconstruction
+from rgbd2scene.scene import folder
 from rgbd2scene.versions import software_versions
 
 
@@ -27,14 +28,14 @@ def scene_record(recon: Reconstruction) -> dict:
         "capture": recon.capture.describe(),
         "options": recon.options.to_dict(),
         "fill": {"method": fill.method, "settings": fill.settings, "stats": fill.stats},
-        "mesh": {"file": "mesh.ply", "textured": "mesh.obj", "stats": recon.stats["mesh"],
+        "mesh": {"file": folder.MESH, "textured": folder.TEXTURED_MESH, "stats": recon.stats["mesh"],
                  "max_relative_jump": recon.options.max_relative_jump,
                  "max_grazing_deg": recon.options.max_grazing_deg},
         "smooth": {"method": recon.options.smooth, "iterations": recon.options.smooth_iterations,
                    "stats": recon.stats["smooth"]},
         "timings": recon.timings,
-        "files": {"mesh": "mesh.ply", "depth_filled": "depth_filled.npy", "textured_mesh": "mesh.obj",
-                  "texture": "mesh_texture.png", "overview": "overview.png"},
+        "files": {"mesh": folder.MESH, "depth_filled": folder.DEPTH_FILLED, "textured_mesh": folder.TEXTURED_MESH,
+                  "texture": folder.TEXTURE, "overview": folder.OVERVIEW},
     }
 
 
@@ -45,22 +46,22 @@ def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool
     ``finalize=False`` the caller adds more (the Blender scene) and writes it itself.
     """
     out = ensure_output_dir(out_dir)
-    (out / "scene.json").unlink(missing_ok=True)
+    (out / folder.SCENE_JSON).unlink(missing_ok=True)
     t0 = time.perf_counter()
-    write_ply(out / "mesh.ply", recon.mesh)
+    write_ply(out / folder.MESH, recon.mesh)
     depth_filled = recon.filled.depth.astype(np.float32)
-    write_npy(out / "depth_filled.npy", depth_filled)
-    write_textured_obj(out, recon.mesh, name="mesh")
+    write_npy(out / folder.DEPTH_FILLED, depth_filled)
+    write_textured_obj(out, recon.mesh, name=folder.MESH_NAME)
     if recon.options.overview:
         from rgbd2scene.pictures.overview import render_mesh_image, write_overview
 
         K = recon.capture.intrinsics.K
         h, w = depth_filled.shape
         mesh_img = render_mesh_image(recon.mesh.vertices, recon.mesh.triangles, recon.mesh.vertex_colors, K, w, h)
-        write_overview(out / "overview.png", recon.capture.rgb, recon.capture.depth, depth_filled, mesh_img,
+        write_overview(out / folder.OVERVIEW, recon.capture.rgb, recon.capture.depth, depth_filled, mesh_img,
                        title=Path(recon.capture.rgb_path).name)
     recon.timings["write_s"] = time.perf_counter() - t0
     record = scene_record(recon)
     if finalize:
-        write_json(out / "scene.json", record)
+        write_json(out / folder.SCENE_JSON, record)
     return record

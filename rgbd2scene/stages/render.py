@@ -1,11 +1,11 @@
-"""``rgbd2scene render SCENE -o DATASET``: render a scene folder into a stereo dataset (no ``bpy`` here).
+"""The render stage (``rgbd2scene render SCENE -o DATASET``): a scene folder -> a stereo dataset (no ``bpy``).
 
 :func:`render_dataset` validates its inputs, writes ``DATASET/dataset.json`` first, then runs the Blender
-worker (``python -m render.frames``) in fresh processes over bounded chunks of frames, so memory
-stays flat however long the sequence. Finished frames (both eyes' PNG and npz present: every file is
-written atomically) are skipped, so re-running the same command resumes. A tqdm bar with ETA follows
-the worker's one-line-per-frame progress on its stdout; a failing worker raises :class:`RenderError`
-with the tail of its log.
+worker through the one crossing (:mod:`rgbd2scene.stages.blender`) over bounded chunks of frames, each in
+a fresh process, so memory stays flat however long the sequence. The worker takes K, the baseline and
+every pose from the scene model sent in the task. Finished frames (both eyes' PNG and npz present: every
+file is written atomically) are skipped, so re-running the same command resumes; what a killed run left
+is swept first. A tqdm bar with ETA follows the worker's progress lines.
 """
 
 from __future__ import annotations
@@ -13,20 +13,19 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
-import subprocess
-import sys
-import tempfile
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.files.atomic import ensure_output_dir
 from rgbd2scene.groundtruth.passes import parse_maps
+from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
+from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.stages.blender import Event, Task, run_task
 from rgbd2scene.versions import software_versions
 
 DENOISERS = ("none", "oidn", "optix")
@@ -36,20 +35,76 @@ DEVICES = ("CPU", "GPU")
 DEFAULT_SAMPLES = 1
 DEFAULT_DENOISE = "oidn"
 DEFAULT_CHUNK = 25
-#: The data render of the ground truth (see render/render_frames.py).
+#: The data render of the ground truth (render/frames.py implements it; recorded in dataset.json).
 GT_RENDER = {"samples": 1, "filter_width_px": 0.01, "max_bounces": 0, "material_override": "black emission",
              "passes": ["Depth", "Normal", "Vector", "IndexOB"], "exr": "32-bit float, multilayer"}
-#: dataset.json entries that must match for a re-run to resume into the same folder.
-RESUME_KEYS = ("width", "height", "frames", "baseline", "K", "seed")
-RESUME_RENDER_KEYS = ("samples", "adaptive_sampling", "denoiser", "gt")
-_PROGRESS = re.compile(r"^frame (\d+) (done|skipped|rgb)\b")
+#: dataset.json entries that must match for a re-run to resume into the same folder (besides the
+#: render options marked ``resume`` and the scene's hash).
+RESUME_KEYS = ("width", "height", "frames", "baseline", "K")
 #: Share of a frame's progress-bar step given when its images are written (the data render that
 #: completes it takes the rest: about a tenth of the time).
 RGB_SHARE = 0.9
-_NUMBERS = re.compile(r"(\w+) ([0-9.]+)(s|MB)")
-REPO_ROOT = Path(__file__).resolve().parents[2]
-#: Temporary files younger than this may belong to a run over other frames of the same folder: kept.
-TEMP_MIN_AGE_S = 60.0
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"512x256"`` -> (512, 256); ValueError when it is not two positive integers."""
+    try:
+        w, h = (int(x) for x in str(text).lower().split("x"))
+    except ValueError:
+        raise ValueError(f"size must look like 512x256, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise ValueError(f"size must be positive, got {text!r}")
+    return w, h
+
+
+@dataclass
+class RenderOptions:
+    """Every setting of the render stage (CLI flags, batch keys, the task file and dataset.json's record)."""
+
+    frames: int | None = option(None, "dataset length: the first N frames of the path (default all)")
+    size: tuple[int, int] | None = option(None, "image size WxH (default the scene's; K is rescaled)",
+                                          parse=parse_size, metavar="WxH")
+    gt: str = option("all", "maps: all, none, or a list of depth,disparity,normals,flow,segmentation "
+                     "(default all)", resume=True)
+    start: int | None = option(None, "first frame of this chunk (default 0)")
+    end: int | None = option(None, "end (exclusive) of this chunk (default the last frame)")
+    samples: int = option(DEFAULT_SAMPLES, "RGB samples per pixel", resume=True)
+    adaptive: bool = option(True, "turn off adaptive sampling", resume=True)
+    denoise: str = option(DEFAULT_DENOISE, "denoiser: none, oidn, optix (the ground truth never sees it)",
+                          resume=True)
+    device: str = option("CPU", "CPU or GPU")
+    threads: int = option(0, "render threads (0: all cores)")
+    chunk: int = option(DEFAULT_CHUNK, "frames per worker process (Blender grows in memory over long renders)")
+    seed: int = option(0, "Cycles seed (animated per frame)", resume=True)
+    persistent_data: bool = option(True, "keep Cycles' scene data (BVH) between the renders of a chunk",
+                                   cli=False)
+
+    def validated(self) -> RenderOptions:
+        """A normalised copy (map list, upper-case device, lower-case denoiser); :class:`OptionError` if bad."""
+        try:
+            maps = parse_maps(self.gt)
+        except ValueError as exc:
+            raise OptionError("gt", str(exc)) from None
+        denoise = (self.denoise or "none").lower()
+        if denoise not in DENOISERS:
+            raise OptionError("denoise", f"choose one of {', '.join(DENOISERS)}, got {self.denoise!r}")
+        device = str(self.device).upper()
+        if device not in DEVICES:
+            raise OptionError("device", f"choose CPU or GPU, got {self.device!r}")
+        for name in ("samples", "chunk"):
+            if int(getattr(self, name)) < 1:
+                raise OptionError(name, f"must be at least 1, got {getattr(self, name)}")
+        size = None
+        if self.size is not None:
+            size = tuple(int(v) for v in self.size)
+            if len(size) != 2 or min(size) <= 0:
+                raise OptionError("size", f"must be positive, got {'x'.join(map(str, size))}")
+        return replace(self, gt=",".join(maps) or "none", denoise=denoise, device=device, size=size,
+                       samples=int(self.samples), chunk=int(self.chunk), seed=int(self.seed))
+
+    @property
+    def maps(self) -> tuple[str, ...]:
+        return parse_maps(self.gt)
 
 
 def _sha1(path: Path) -> str | None:
@@ -62,87 +117,79 @@ def _sha1(path: Path) -> str | None:
     return h.hexdigest()
 
 
-def _worker_env() -> dict:
-    """The worker imports ``render`` and ``rgbd2scene`` from this checkout."""
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    return env
-
-
-def _tail(log, lines: int = 20) -> str:
-    log.seek(0)
-    text = log.read().decode(errors="replace").splitlines()
-    keep = [t for t in text if t.strip() and not t.lstrip().startswith("Fra:") and "| Sample " not in t]
-    return "\n".join(keep[-lines:])
-
-
 def load_scene(scene_dir: str | Path, python: str | None = None) -> tuple[Path, dict, SceneDescription]:
-    """Validate a scene folder; (folder, scene.json record, description)."""
+    """Validate a scene folder; (folder, scene.json record, the scene model)."""
     scene_dir = Path(scene_dir)
     if not scene_dir.is_dir():
         raise UserError(f"{scene_dir}: scene folder not found")
-    for name in ("scene.blend", "scene.json"):
+    for name in (SCENE_BLEND, SCENE_JSON):
         if not (scene_dir / name).is_file():
             raise UserError(f"{scene_dir}: not a scene folder made by 'rgbd2scene scene' ({name} is missing)")
     try:
-        record = json.loads((scene_dir / "scene.json").read_text())
+        record = json.loads((scene_dir / SCENE_JSON).read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{scene_dir / 'scene.json'}: not readable JSON ({exc})") from None
+        raise UserError(f"{scene_dir / SCENE_JSON}: not readable JSON ({exc})") from None
     if not isinstance(record, dict):
-        raise UserError(f"{scene_dir / 'scene.json'}: must hold a JSON object")
+        raise UserError(f"{scene_dir / SCENE_JSON}: must hold a JSON object")
     try:
         if isinstance(record.get("scene"), dict):
             description = SceneDescription.from_dict(record["scene"])
         else:  # fall back to the description stored in the blend (needs Blender: ask the worker)
             description = SceneDescription.from_dict(_describe_from_blend(scene_dir, python))
     except (KeyError, TypeError, ValueError) as exc:
-        raise UserError(f"{scene_dir / 'scene.json'}: bad scene description ({exc!r})") from None
+        raise UserError(f"{scene_dir / SCENE_JSON}: bad scene description ({exc!r})") from None
     return scene_dir, record, description
 
 
 def _describe_from_blend(scene_dir: Path, python: str | None) -> dict:
-    where = str(scene_dir.resolve())
-    cmd = [python or sys.executable, "-m", "render.frames", where, where, "--describe"]
-    proc = subprocess.run(cmd, capture_output=True, env=_worker_env())
-    lines = [t for t in proc.stdout.decode(errors="replace").splitlines() if t.startswith("{")]
-    if proc.returncode != 0 or not lines:
-        err = proc.stderr.decode(errors="replace").strip().splitlines()
+    try:
+        result = run_task(Task("describe", str(scene_dir.resolve())), python=python, what="describe worker")
+    except RenderError as exc:
+        last = str(exc).strip().splitlines()[-1]
         raise UserError(f"{scene_dir}: scene.json has no 'scene' and scene.blend holds no description "
-                        f"({err[-1] if err else 'no output'})")
-    return json.loads(lines[-1])
+                        f"({last})") from None
+    texts = [e.text for e in result.events if e.kind == "describe"]
+    if not texts:
+        raise UserError(f"{scene_dir}: scene.json has no 'scene' and scene.blend holds no description")
+    return json.loads(texts[-1])
 
 
-def dataset_info(scene_dir: Path, record: dict, description: SceneDescription, intr: Intrinsics, frames: int,
-                 maps: tuple[str, ...], samples: int, adaptive: bool, denoise: str, device: str, seed: int,
-                 chunk: int) -> dict:
-    """The dataset.json record (CONVENTIONS §4 plus the render settings and provenance)."""
-    files = record.get("files") if isinstance(record.get("files"), dict) else {}
-    mesh_path = scene_dir / str(files.get("mesh") or description.mesh_file)
+def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, frames: int,
+                 options: RenderOptions) -> dict:
+    """The dataset.json record (CONVENTIONS §4 plus the render settings and provenance).
+
+    The scene is referred to by its path relative to the dataset folder and the hashes of its files, so
+    a dataset folder can be moved (with its scene beside it, or alone: the hashes still identify it).
+    """
+    intr = description.rig.intrinsics
+    tissue = next((p for o, p in description.parts() if o.kind == "tissue"), None)
+    rel = Path(os.path.relpath(scene_dir.resolve(), out_dir.resolve()))
+    table = description.object_table()
+    render = to_record(options)
+    render.update(engine="CYCLES", gt=list(options.maps), gt_render=GT_RENDER)
     return {
         "width": intr.width, "height": intr.height, "frames": frames, "fps": description.path.fps,
         "baseline": description.rig.baseline, "K": intr.K.tolist(), "eyes": list(ds.EYES),
         "intrinsics": intr.to_dict(),
-        "objects": {str(o.id): {"name": o.name, "part": o.part, "class": o.cls, "moving": o.moving}
-                    for o in description.objects},
-        "scene": {"dir": str(scene_dir.resolve()), "mesh": str(mesh_path.resolve()),
-                  "mesh_sha1": _sha1(mesh_path), "scene_json_sha1": _sha1(scene_dir / "scene.json"),
-                  "blend_sha1": _sha1(scene_dir / "scene.blend"), "path_kind": description.path.kind,
-                  "path_frames": description.path.frames, "material": description.material},
+        "objects": table["objects"], "classes": table["classes"], "tracked_frames": table["tracked_frames"],
+        "scene": {"dir": rel.as_posix(),
+                  "mesh": (rel / tissue.geometry).as_posix() if tissue else None,
+                  "mesh_sha1": _sha1(scene_dir / tissue.geometry) if tissue else None,
+                  "scene_json_sha1": _sha1(scene_dir / SCENE_JSON),
+                  "blend_sha1": _sha1(scene_dir / SCENE_BLEND), "path_kind": description.path.kind,
+                  "path_frames": description.path.frames},
         "software": software_versions(),
-        "seed": seed,
+        "seed": options.seed,
         "conventions_version": CONVENTIONS_VERSION,
-        "render": {"engine": "CYCLES", "samples": samples, "adaptive_sampling": adaptive, "denoiser": denoise,
-                   "size": [intr.width, intr.height], "gt": list(maps), "device": device,
-                   "gt_render": GT_RENDER, "chunk": chunk},
+        "render": render,
         "layout": {"rgb": "{eye}/rgb/{frame:06d}.png", "gt": "{eye}/gt/{frame:06d}.npz"},
     }
 
 
-def _check_resume(existing: dict, info: dict, path: Path) -> None:
+def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path) -> None:
     diffs = [k for k in RESUME_KEYS if existing.get(k) != info[k]]
-    old_render = existing.get("render", {})
-    diffs += [f"render.{k}" for k in RESUME_RENDER_KEYS if old_render.get(k) != info["render"][k]]
+    old = existing.get("render", {})
+    diffs += [f"render.{k}" for k in resume_diff(options, {**old, "gt": ",".join(old.get("gt", []))})]
     if existing.get("scene", {}).get("scene_json_sha1") != info["scene"]["scene_json_sha1"]:
         diffs.append("scene (scene.json changed)")
     if diffs:
@@ -150,101 +197,82 @@ def _check_resume(existing: dict, info: dict, path: Path) -> None:
                         f"({', '.join(diffs)}); choose another output folder or delete it")
 
 
-def render_dataset(scene_dir: str | Path, out_dir: str | Path, frames: int | None = None,
-                   size: tuple[int, int] | None = None, gt: str = "all", start: int | None = None,
-                   end: int | None = None, samples: int = DEFAULT_SAMPLES, adaptive: bool = True,
-                   denoise: str = DEFAULT_DENOISE, device: str = "CPU", chunk: int = DEFAULT_CHUNK, seed: int = 0,
-                   threads: int = 0, progress: bool = True, python: str | None = None) -> dict:
+def render_model(description: SceneDescription, options: RenderOptions) -> SceneDescription:
+    """The scene model as rendered: the rig resized to ``options.size`` (K follows ``Intrinsics.resized``)."""
+    if options.size is None:
+        return description
+    return replace(description, rig=description.rig.resized(*options.size))
+
+
+def render_task(scene_dir: Path, out_dir: Path, description: SceneDescription, options: RenderOptions,
+                frames: int, start: int, end: int) -> Task:
+    """The worker task that renders frames [start, end) of a ``frames``-long dataset (``description`` as
+    rendered, see :func:`render_model`)."""
+    return Task("render", str(Path(scene_dir).resolve()), description.to_dict(),
+                dataset_dir=str(Path(out_dir).resolve()), render=to_record(options), frames=int(frames),
+                start=int(start), end=int(end))
+
+
+def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions | None = None, *,
+                   progress: bool = True, python: str | None = None, **overrides) -> dict:
     """Render SCENE into DATASET (CONVENTIONS §4); returns a summary dict.
 
     Parameters
     ----------
-    frames
-        Dataset length: the first ``frames`` frames of the camera path (default: all of it; more than
-        the path holds is an error).
-    size
-        (W, H) of the images; K is rescaled with :meth:`Intrinsics.resized` (default: the scene's).
-    gt
-        ``"all"``, ``"none"`` or a comma list of maps (``depth,disparity,normals,flow,segmentation``).
-    start, end
-        Render only frames [start, end) of the dataset (default: all); the rest can follow later.
-    samples, adaptive, denoise, seed
-        RGB render: samples per pixel, adaptive sampling, denoiser (none, oidn, optix), Cycles seed.
-    device, threads
-        Cycles device (CPU or GPU) and render threads (0: all cores).
-    chunk
-        Frames per worker process (Blender's memory grows over long renders).
+    options
+        :class:`RenderOptions` (``frames``: dataset length, the first N frames of the camera path;
+        ``size``: (W, H), K follows :meth:`Intrinsics.resized`; ``gt``: ``"all"``, ``"none"`` or a comma
+        list of maps; ``start``/``end``: render only frames [start, end); ``samples``, ``adaptive``,
+        ``denoise``, ``seed``: the RGB render; ``device``, ``threads``; ``chunk``: frames per worker
+        process). Keyword ``overrides`` replace single fields (``render_dataset(s, d, samples=4)``).
+    progress
+        Show a tqdm bar.
     """
     t_start = time.perf_counter()
+    options = replace(options or RenderOptions(), **overrides)
     try:
-        maps = parse_maps(gt)
-    except ValueError as exc:
-        raise UserError(f"--gt: {exc}") from None
-    denoise = (denoise or "none").lower()
-    if denoise not in DENOISERS:
-        raise UserError(f"--denoise: choose one of {', '.join(DENOISERS)}, got {denoise!r}")
-    device = str(device).upper()
-    if device not in DEVICES:
-        raise UserError(f"--device: choose CPU or GPU, got {device!r}")
-    if int(samples) < 1:
-        raise UserError(f"--samples: must be at least 1, got {samples}")
-    if int(chunk) < 1:
-        raise UserError(f"--chunk: must be at least 1, got {chunk}")
+        options = options.validated()
+    except OptionError as exc:
+        raise UserError(f"{flag_of(RenderOptions, exc.name)}: {exc.message}") from None
 
-    scene_dir, record, description = load_scene(scene_dir, python)
+    scene_dir, _record, description = load_scene(scene_dir, python)
     path_frames = description.path.frames
-    n = path_frames if frames is None else int(frames)
+    n = path_frames if options.frames is None else int(options.frames)
     if n < 1 or n > path_frames:
         raise UserError(f"--frames: {n} is not between 1 and the {path_frames} frames of the camera path "
-                        f"in {scene_dir / 'scene.json'}")
-    s = 0 if start is None else int(start)
-    e = n if end is None else int(end)
+                        f"in {scene_dir / SCENE_JSON}")
+    s = 0 if options.start is None else int(options.start)
+    e = n if options.end is None else int(options.end)
     if not 0 <= s < e <= n:
         raise UserError(f"--start/--end: [{s}, {e}) is not a non-empty range inside the {n} frames")
-    intr = description.rig.intrinsics
-    if size is not None:
-        w, h = (int(v) for v in size)
-        if w <= 0 or h <= 0:
-            raise UserError(f"--size: must be positive, got {w}x{h}")
-        intr = intr.resized(w, h)
+    description = render_model(description, options)
     out = ensure_output_dir(out_dir)
 
-    info = dataset_info(scene_dir, record, description, intr, n, maps, int(samples), bool(adaptive), denoise,
-                        device, int(seed), int(chunk))
+    info = dataset_info(scene_dir, out, description, n, options)
     json_path = out / ds.DATASET_JSON
     if json_path.is_file():
-        _check_resume(ds.read_dataset_json(out), info, json_path)
+        _check_resume(ds.read_dataset_json(out), info, options, json_path)
     else:
         ds.write_dataset_json(out, info)
-    ds.remove_temp_files(out, min_age_s=TEMP_MIN_AGE_S)
+    ds.sweep_dead_runs(out)
 
-    with_gt = bool(maps)
+    with_gt = bool(options.maps)
     todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=with_gt)]
     skipped = (e - s) - len(todo)
-    chunks = [todo[i:i + int(chunk)] for i in range(0, len(todo), int(chunk))]
-    base = [python or sys.executable, "-m", "render.frames", str(scene_dir.resolve()),
-            str(out.resolve()), "--frames", str(n), "--samples", str(int(samples)),
-            "--gt", ",".join(maps) or "none", "--device", device, "--denoise", denoise,
-            "--seed", str(int(seed)), "--threads", str(int(threads))]
-    if size is not None:
-        base += ["--size", f"{intr.width}x{intr.height}"]
-    if not adaptive:
-        base.append("--no-adaptive")
-
+    chunks = [todo[i:i + options.chunk] for i in range(0, len(todo), options.chunk)]
     stats: dict[int, dict] = {}
     starts: list[float] = []
     bar = _progress_bar(len(todo), progress)
     try:
         for group in chunks:
-            cmd = base + ["--start", str(group[0]), "--end", str(group[-1] + 1)]
-            _run_worker(cmd, set(group), stats, starts, bar)
+            task = render_task(scene_dir, out, description, options, n, group[0], group[-1] + 1)
+            _run_chunk(task, set(group), stats, starts, bar, python)
             missing = [i for i in group if not ds.frame_done(out, i, gt=with_gt)]
             if missing:
                 raise RenderError(f"render worker finished but frames {missing} of {out} are incomplete")
     finally:
         if bar is not None:
             bar.close()
-    ds.remove_temp_files(out, min_age_s=TEMP_MIN_AGE_S)
 
     done = [stats[i] for i in sorted(stats)]
     wall = time.perf_counter() - t_start
@@ -271,45 +299,29 @@ def _progress_bar(total: int, enabled: bool):
                 bar_format="{l_bar}{bar}| {n:.1f}/{total} frames [{elapsed}<{remaining}]")
 
 
-def _run_worker(cmd: list[str], group: set[int], stats: dict, starts: list, bar) -> None:
-    """Run one worker process; parse its progress lines; raise RenderError when it fails."""
-    t0 = time.perf_counter()
+def _run_chunk(task: Task, group: set[int], stats: dict, starts: list, bar, python: str | None) -> None:
+    """Run one worker over a chunk; feed its progress events to the bar and the statistics."""
     half_done: set[int] = set()
-    with tempfile.TemporaryFile() as log:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=_worker_env(), text=True,
-                                bufsize=1)
-        try:
-            for line in proc.stdout:
-                line = line.strip()
-                if line.startswith("ready"):
-                    starts.append(time.perf_counter() - t0)
-                    continue
-                m = _PROGRESS.match(line)
-                if not m or int(m.group(1)) not in group:
-                    continue
-                index, what = int(m.group(1)), m.group(2)
-                if what == "rgb":
-                    half_done.add(index)
-                    step = RGB_SHARE
-                else:
-                    step = 1.0 - RGB_SHARE if index in half_done else 1.0
-                    if what == "done":
-                        stats[index] = {k: float(v) for k, v, _ in _NUMBERS.findall(line)}
-                if bar is not None:
-                    bar.update(step)
-            rc = proc.wait()
-        except BaseException:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-            raise
-        if rc != 0:
-            frames = f"{min(group)}-{max(group)}" if group else "?"
-            raise RenderError(f"render worker failed (exit status {rc}) on frames {frames}:\n{_tail(log)}\n"
-                              f"command: {' '.join(cmd)}")
+
+    def on_event(event: Event) -> None:
+        if event.kind == "ready":
+            starts.append(event.stats["start"])
+            return
+        if event.frame not in group:
+            return
+        if event.kind == "rgb":
+            half_done.add(event.frame)
+            step = RGB_SHARE
+        else:
+            step = 1.0 - RGB_SHARE if event.frame in half_done else 1.0
+            if event.kind == "done":
+                stats[event.frame] = event.stats
+        if bar is not None:
+            bar.update(step)
+
+    where = f" on frames {min(group)}-{max(group)}" if group else ""
+    run_task(task, on_event, python=python, what="render worker", where=where)
 
 
-__all__ = ["render_dataset", "RenderError", "load_scene", "dataset_info"]
+__all__ = ["RenderOptions", "render_dataset", "RenderError", "load_scene", "dataset_info", "parse_size", "render_model",
+           "render_task"]

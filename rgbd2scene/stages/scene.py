@@ -20,9 +20,11 @@ from rgbd2scene.files.atomic import write_json
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
-from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, SceneObject
+from rgbd2scene.scene import folder
+from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
 from rgbd2scene.scene.path import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
 from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
+from rgbd2scene.stages.blender import Task, run_task
 
 
 @dataclass
@@ -54,8 +56,10 @@ class SceneOptions:
         return StereoRig(intr, self.baseline)
 
 
-def make_description(vertices: np.ndarray, triangles: np.ndarray, options: SceneOptions, rc=None) -> SceneDescription:
-    """Rig, path (generated over the mesh or read from a path file), light and material.
+def make_description(vertices: np.ndarray, triangles: np.ndarray, options: SceneOptions, rc=None,
+                     texture: str | None = folder.TEXTURE) -> SceneDescription:
+    """The scene model: rig, path (generated over the mesh or read from a path file), light, and the tissue
+    (``mesh.ply`` with ``texture``, or its vertex colours when None).
 
     ``rc`` is a ready ``raycast.Raycaster`` of the mesh (built here if not given).
     """
@@ -70,21 +74,25 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         path = make_path(options.path, vertices, triangles, rig, frames=options.frames, fps=options.fps,
                          seed=options.seed, standoff=options.standoff, rc=rc)
     light = Light(kind=options.light, power_w=options.light_power_w)
-    return SceneDescription(rig, path, light, options.material, mesh_file="mesh.ply",
-                            texture_file="mesh_texture.png", objects=[SceneObject(1, "tissue")])
+    return SceneDescription(rig, path, light, [tissue_object(options.material, folder.MESH, texture)])
 
 
-def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions) -> dict:
-    """Build SCENE/scene.blend for ``mesh`` (already written to out_dir) and write scene.json last."""
-    from render.scene_builder import build_scene  # bpy lives in render/
+def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions, python: str | None = None) -> dict:
+    """Build SCENE/scene.blend for ``mesh`` (its files already in out_dir) and write scene.json last.
 
+    Blender runs in a fresh worker process (:func:`rgbd2scene.stages.blender.run_task`), which reads the
+    geometry and texture files the scene model names.
+    """
     t0 = time.perf_counter()
     rc = raycaster(mesh.vertices, mesh.triangles)
-    desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc)
+    texture = folder.TEXTURE if (out_dir / folder.TEXTURE).is_file() and mesh.uvs is not None else None
+    desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc, texture=texture)
     coverage = path_coverage(mesh.vertices, mesh.triangles, desc.rig, desc.path, scale=0.5, rc=rc)
     timings = {"path_s": time.perf_counter() - t0}
     t0 = time.perf_counter()
-    build_scene(desc, mesh, out_dir / "scene.blend")
+    blend = out_dir.resolve() / folder.SCENE_BLEND
+    run_task(Task("build_scene", str(out_dir.resolve()), desc.to_dict(), blend=str(blend)), python=python,
+             what="scene worker")
     timings["blend_s"] = time.perf_counter() - t0
     record = dict(record)
     record["scene"] = desc.to_dict()
@@ -92,9 +100,9 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions)
                                    else v) for k, v in options.__dict__.items()}
     record["coverage"] = {"min": float(coverage.min()), "mean": float(coverage.mean()),
                           "per_frame_left_right": coverage.round(4).tolist(), "check_scale": 0.5}
-    record["blend"] = "scene.blend"
+    record["blend"] = folder.SCENE_BLEND
     record.setdefault("timings", {}).update(timings)
-    write_json(out_dir / "scene.json", record)
+    write_json(out_dir / folder.SCENE_JSON, record)
     return record
 
 
@@ -105,23 +113,23 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
     """
 
     src = Path(mesh_dir)
-    record_path = src / "scene.json"
-    if not record_path.is_file() or not (src / "mesh.ply").is_file():
+    record_path = src / folder.SCENE_JSON
+    if not record_path.is_file() or not (src / folder.MESH).is_file():
         raise UserError(f"{src}: not a mesh folder made by 'rgbd2scene mesh' (needs scene.json and mesh.ply)")
     try:
         record = json.loads(record_path.read_text())
     except json.JSONDecodeError as exc:
         raise UserError(f"{record_path}: not valid JSON ({exc})") from None
     # from here on out_dir is a scene being built: it must not look complete until scene.json is rewritten
-    (out_dir / "scene.json").unlink(missing_ok=True)
-    mesh = read_ply(src / "mesh.ply")
-    texture_path = src / "mesh_texture.png"
+    (out_dir / folder.SCENE_JSON).unlink(missing_ok=True)
+    mesh = read_ply(src / folder.MESH)
+    texture_path = src / folder.TEXTURE
     if texture_path.is_file():
         mesh.texture = read_image(texture_path)
         if mesh.texture is None:
             raise UserError(f"{texture_path}: not a readable texture image")
     if src.resolve() != out_dir.resolve():
-        for name in ("mesh.ply", "depth_filled.npy", "mesh.obj", "mesh.mtl", "mesh_texture.png", "overview.png"):
+        for name in folder.MESH_FOLDER_FILES:
             if (src / name).is_file():
                 shutil.copy2(src / name, out_dir / name)
     record.pop("scene", None)

@@ -1,0 +1,149 @@
+"""Options declared once: a stage's settings are one dataclass whose fields carry their help text.
+
+From that one declaration derive the command-line flags (:func:`add_arguments`, :func:`from_args`), the
+configuration keys of a batch build (:func:`from_mapping`, unknown keys are an error), the task file
+handed to Blender and the records in ``scene.json`` / ``dataset.json`` (:func:`to_record`), and the resume
+check (:func:`resume_diff` compares the fields marked ``resume=True``).
+
+A field's CLI flag is ``--name-with-dashes`` unless ``flag=`` says otherwise; a boolean that defaults to
+True gets a ``--no-...`` flag. Problems found by ``validate()`` are :class:`OptionError`\\ s naming the
+field, which the CLI reports with the flag and a batch build with the configuration key.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import typing
+from collections.abc import Callable, Mapping
+from typing import Any
+
+
+class OptionError(ValueError):
+    """An invalid option value; ``name`` is the field, so each front end can name its own spelling."""
+
+    def __init__(self, name: str, message: str):
+        super().__init__(message)
+        self.name = name
+        self.message = message
+
+
+def option(default: Any = None, help: str = "", *, flag: str | None = None, choices=None,
+           parse: Callable[[str], Any] | None = None, resume: bool = False, cli: bool = True,
+           metavar: str | None = None) -> Any:
+    """A dataclass field with what the CLI and the records need to know about it.
+
+    ``parse`` turns the command-line (or configuration) text into the value (e.g. ``"512x256"`` -> (512, 256));
+    ``resume`` marks settings that must match for a re-run to continue into the same output folder;
+    ``cli=False`` keeps a field out of the command line (set by the program, or by configuration files).
+    """
+    meta = {"help": help, "flag": flag, "choices": choices, "parse": parse, "resume": resume, "cli": cli,
+            "metavar": metavar}
+    if isinstance(default, (list, dict, set)):
+        return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def flag_of(cls, name: str) -> str:
+    """The command-line flag of field ``name`` (for error messages)."""
+    f = {f.name: f for f in dataclasses.fields(cls)}[name]
+    if f.metadata.get("flag"):
+        return f.metadata["flag"]
+    if f.default is True:
+        return "--no-" + name.replace("_", "-")
+    return "--" + name.replace("_", "-")
+
+
+def _base_type(cls, f) -> type | None:
+    hint = typing.get_type_hints(cls).get(f.name)
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    base = args[0] if args else hint
+    base = typing.get_origin(base) or base
+    return base if isinstance(base, type) else None
+
+
+def _describe_default(value) -> str:
+    if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
+        return f"{value[0]}x{value[1]}"
+    return str(value)
+
+
+def _argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """``parse`` for argparse: its ValueError message becomes the flag's error message."""
+    def convert(text: str):
+        try:
+            return parse(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    convert.__name__ = parse.__name__
+    return convert
+
+
+def add_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls, exclude=()) -> None:
+    """Add one flag per CLI field of the options dataclass ``cls`` (defaults and help from the fields)."""
+    for f in dataclasses.fields(cls):
+        meta = f.metadata
+        if not meta.get("cli", True) or f.name in exclude:
+            continue
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        help_text = meta.get("help", "")
+        flag = flag_of(cls, f.name)
+        if isinstance(default, bool):
+            action = "store_false" if default else "store_true"
+            parser.add_argument(flag, dest=f.name, action=action, default=default, help=help_text)
+            continue
+        kind = _argparse_type(meta["parse"]) if meta.get("parse") else _base_type(cls, f)
+        if kind in (list, tuple, dict):
+            kind = None
+        if default is not None and help_text and "default" not in help_text:
+            help_text = f"{help_text} (default {_describe_default(default)})"
+        parser.add_argument(flag, dest=f.name, type=kind, default=default, choices=meta.get("choices"),
+                            help=help_text, metavar=meta.get("metavar"))
+
+
+def from_args(cls, args: argparse.Namespace, **overrides):
+    """The options dataclass from parsed arguments (fields without a flag keep their defaults)."""
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if hasattr(args, f.name)}
+    values.update(overrides)
+    return cls(**values)
+
+
+def from_mapping(cls, values: Mapping[str, Any], where: str = ""):
+    """The options dataclass from a configuration mapping; unknown keys and bad values are
+    :class:`OptionError`\\ s naming ``where.key``. String values go through the field's ``parse``."""
+    names = {f.name: f for f in dataclasses.fields(cls)}
+    prefix = f"{where}." if where else ""
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise OptionError(prefix + unknown[0], f"unknown key (known: {', '.join(sorted(names))})")
+    kwargs = {}
+    for key, value in values.items():
+        parse = names[key].metadata.get("parse")
+        if parse is not None and isinstance(value, str):
+            try:
+                value = parse(value)
+            except (ValueError, argparse.ArgumentTypeError) as exc:
+                raise OptionError(prefix + key, str(exc)) from None
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+def to_record(options) -> dict:
+    """JSON-ready dict of every field (tuples as lists; nested dataclasses through their ``to_dict``)."""
+    out = {}
+    for f in dataclasses.fields(options):
+        value = getattr(options, f.name)
+        if hasattr(value, "to_dict"):
+            value = value.to_dict()
+        elif isinstance(value, tuple):
+            value = list(value)
+        out[f.name] = value
+    return out
+
+
+def resume_diff(options, record: Mapping[str, Any]) -> list[str]:
+    """Names of the ``resume=True`` fields whose value differs from ``record`` (a :func:`to_record` dict)."""
+    now = to_record(options)
+    return [f.name for f in dataclasses.fields(options)
+            if f.metadata.get("resume") and record.get(f.name) != now[f.name]]

@@ -1,0 +1,29 @@
+"""File names of a scene folder (CONVENTIONS §4): the one place that spells them.
+
+```
+SCENE/scene.json          the record (written last: a folder with it is complete)
+SCENE/scene.blend         the Blender scene
+SCENE/mesh.ply            the tissue surface (binary PLY, vertex colours, UVs, metres, world frame)
+SCENE/depth_filled.npy    the capture depth the mesh was built from
+SCENE/mesh.obj/.mtl, mesh_texture.png, overview.png
+SCENE/objects/<id>.ply    each rigid object part, in its own frame
+```
+"""
+
+SCENE_JSON = "scene.json"
+SCENE_BLEND = "scene.blend"
+MESH = "mesh.ply"
+DEPTH_FILLED = "depth_filled.npy"
+MESH_NAME = "mesh"  # mesh.obj, mesh.mtl and mesh_texture.png
+TEXTURED_MESH = f"{MESH_NAME}.obj"
+MATERIAL_LIBRARY = f"{MESH_NAME}.mtl"
+TEXTURE = f"{MESH_NAME}_texture.png"
+OVERVIEW = "overview.png"
+OBJECTS_DIR = "objects"
+#: What a mesh folder (``rgbd2scene mesh``) holds besides scene.json; copied when a scene reuses one.
+MESH_FOLDER_FILES = (MESH, DEPTH_FILLED, TEXTURED_MESH, MATERIAL_LIBRARY, TEXTURE, OVERVIEW)
+
+
+def object_geometry(part_id: int) -> str:
+    """Scene-folder path of the geometry of the object part with instance id ``part_id``."""
+    return f"{OBJECTS_DIR}/{int(part_id)}.ply"
