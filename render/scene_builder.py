@@ -54,7 +54,7 @@ from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.scene.model import Light, SceneDescription
-from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.paths import CameraPath
 
 TISSUE = "Tissue"
 CAMERA = "Endoscope"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
 MATERIALS = ("as_captured", "wet_tissue")
