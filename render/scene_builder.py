@@ -56,7 +56,7 @@ from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
-from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.paths import CameraPath
 
 TISSUE = "Tissue"
 CAMERA = "Endoscope"

@@ -96,7 +96,7 @@ def cmd_mesh(args) -> int:
 
 def _add_scene_args(p: argparse.ArgumentParser) -> None:
     from rgbd2scene.scene.model import MATERIALS
-    from rgbd2scene.scene.path import PATH_KINDS
+    from rgbd2scene.scene.paths import PATH_GENERATORS
     from rgbd2scene.stages.scene import SceneOptions
 
     d = SceneOptions()  # the defaults shown in --help
@@ -107,7 +107,7 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--scope-camera", help="endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, height); "
                    "overrides --size and --fov")
     g.add_argument("--baseline", type=float, default=d.baseline, help="stereo baseline, metres (default 0.005)")
-    g.add_argument("--path", default=d.path, choices=[k for k in PATH_KINDS if k != "waypoints"],
+    g.add_argument("--path", default=d.path, choices=list(PATH_GENERATORS),
                    help="generated camera path (default scan)")
     g.add_argument("--path-file", help="JSON path file of waypoints (overrides --path)")
     g.add_argument("--frames", type=int, default=d.frames, help="frames in the path (default 60)")

@@ -23,7 +23,7 @@ from render.scene_builder import build_scene  # noqa: E402
 from rgbd2scene import conventions as cv  # noqa: E402
 from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
-from rgbd2scene.scene.path import CameraPath, look_at  # noqa: E402
+from rgbd2scene.scene.paths import CameraPath, look_at  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 

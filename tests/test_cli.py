@@ -98,3 +98,17 @@ def test_user_errors_are_one_line_exit_2(tmp_path, case, message):
     assert message in lines[0]
     assert "Traceback" not in result.stderr
     assert not (tmp_path / "out" / "scene.json").exists()
+
+
+@pytest.mark.parametrize("case", ["path_file", "standoff"])
+def test_scene_path_errors_are_one_line_exit_2(mesh_folder, tmp_path, case):
+    bad = tmp_path / "path.json"
+    bad.write_text(json.dumps({"waypoints": [{"position": [0, 0, 0]}]}))
+    extra, message = {
+        "path_file": (["--path-file", bad], f"error: {bad}: waypoint 0: waypoint lacks look_at (or give T_world_cam)"),
+        "standoff": (["--standoff", "-1"], "error: path: standoff must be positive, got -1.0"),
+    }[case]
+    result = run_cli("scene", "--mesh-dir", mesh_folder, *extra, "-o", tmp_path / "out")
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip() == message
+    assert not (tmp_path / "out" / "scene.json").exists()

@@ -17,7 +17,7 @@ from rgbd2scene.cli import main
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.reconstruct.pipeline import reconstruct
 from rgbd2scene.scene.model import SceneDescription
-from rgbd2scene.scene.path import make_path, path_coverage
+from rgbd2scene.scene.paths import make_path, path_coverage
 from rgbd2scene.scene.rig import StereoRig
 from tests.conftest import BUNDLED_SAMPLE
 

@@ -11,8 +11,12 @@ from rgbd2scene.conventions import backproject, project, transform_points
 from rgbd2scene.errors import UserError
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.reconstruct.mesh import vertex_normals
-from rgbd2scene.scene.path import (
+from rgbd2scene.scene.paths import (
+    PATH_GENERATORS,
+    PATH_KINDS,
     CameraPath,
+    Placement,
+    Track,
     load_path_file,
     look_at,
     make_path,
@@ -21,6 +25,7 @@ from rgbd2scene.scene.path import (
     waypoint_path,
 )
 from rgbd2scene.scene.rig import StereoRig
+from rgbd2scene.stages.scene import SceneOptions, make_description
 
 KINECT_K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
 
@@ -180,9 +185,35 @@ def test_path_file_roundtrip_and_errors(tmp_path):
         p = tmp_path / name
         if content is not None:
             p.write_text(content if isinstance(content, str) else json.dumps(content))
-        with pytest.raises(UserError) as exc:
+        with pytest.raises(ValueError) as exc:
             load_path_file(p)
         assert str(p) in str(exc.value), (name, str(exc.value))
+
+
+def test_track_of_any_object_and_the_camera_json_format(tmp_path):
+    poses = np.stack([look_at([0.01 * i, 0, 0], [0.01 * i, 0, 1]) for i in range(3)])
+    path = CameraPath(poses, fps=25.0, kind="test", settings={"a": 1})
+    d = path.to_dict()
+    assert list(d) == ["kind", "fps", "frames", "settings", "T_world_cam"] and d["frames"] == 3
+    again = CameraPath.from_dict(json.loads(json.dumps(d)))
+    assert type(again) is CameraPath and np.array_equal(again.T_world_cam, poses)
+    assert again.fps == 25.0 and again.kind == "test" and again.settings == {"a": 1}
+    # frames before the first and after the last hold the end poses
+    assert np.array_equal(path.pose_at(-2), poses[0]) and np.array_equal(path.pose_at(1), poses[1])
+    assert np.array_equal(path.pose_at(7), poses[2])
+    # an instrument's track through waypoints (a T_world_obj pose and a look-at), saved and reloaded
+    end = look_at([0.02, 0.01, 0.0], [0.0, 0.0, 0.05])
+    keys = [{"T_world_obj": poses[0].tolist(), "frame": 0},
+            {"position": [0.02, 0.01, 0.0], "look_at": [0.0, 0.0, 0.05], "frame": 4}]
+    track = waypoint_path(keys, frames=6, fps=10, track_type=Track)
+    assert type(track) is Track and "T_world_obj" in track.to_dict() and "T_world_cam" not in track.to_dict()
+    assert np.allclose(track.pose_at(0), poses[0], atol=1e-12) and np.allclose(track.pose_at(5), end, atol=1e-12)
+    save_path_file(tmp_path / "tool.json", track)
+    assert "T_world_obj" in (tmp_path / "tool.json").read_text()
+    reloaded = load_path_file(tmp_path / "tool.json", track_type=Track)
+    assert np.allclose(reloaded.poses, track.poses, atol=1e-12) and reloaded.fps == 10
+    with pytest.raises(ValueError, match="T_world_obj"):  # an object's pose key is not the camera's
+        waypoint_path([{"T_world_cam": poses[0].tolist()}], 2, track_type=Track)
 
 
 # ------------------------------------------------------------------------------------------ generated paths
@@ -221,15 +252,53 @@ def test_generated_paths_deterministic(tissue):
 
 def test_make_path_errors(tissue):
     v, t, rc = tissue
-    with pytest.raises(UserError, match="unknown path kind"):
+    with pytest.raises(ValueError, match="unknown path kind"):
         make_path("zigzag", v, t)
-    with pytest.raises(UserError, match="standoff"):
+    with pytest.raises(ValueError, match="standoff"):
         make_path("scan", v, t, standoff=-1, rc=rc)
-    with pytest.raises(UserError, match="unknown option"):
+    with pytest.raises(ValueError, match="unknown option"):
         make_path("orbit", v, t, rc=rc, wobble=3)
-    with pytest.raises(UserError, match="waypoints"):
+    with pytest.raises(ValueError, match="waypoints"):
         make_path("waypoints")
     # a mesh much smaller than the view at the standoff
     small = v * [0.02, 0.02, 1.0]
-    with pytest.raises(UserError, match="standoff"):
+    with pytest.raises(ValueError, match="standoff"):
         make_path("scan", small, t, frames=5, check_scale=0.2)
+
+
+def test_a_path_kind_is_one_generator_in_the_registry(tissue, monkeypatch):
+    v, t, rc = tissue
+    assert PATH_KINDS == (*PATH_GENERATORS, "waypoints")
+    reliefs = []
+
+    def hover_path(ctx, rng, *, lift=0.0):
+        """Hovers over the most interior point; finds no room below a relief allowance of 2."""
+        reliefs.append(ctx.relief)
+        region = ctx.region(0.0)
+        if ctx.relief < 2.0 or not region.any():
+            return None
+        x, y = ctx.surface.most_interior(region)
+        z = ctx.surface.height_at(np.array([[x, y]]))[0] - ctx.standoff - lift
+        return Placement(np.tile(look_at([x, y, z], [x, y, 1.0]), (ctx.frames, 1, 1)), {"lift": lift})
+
+    monkeypatch.setitem(PATH_GENERATORS, "hover", hover_path)
+    rig = StereoRig.endoscope()
+    path = make_path("hover", rig=rig, frames=4, rc=rc, check_scale=0.2, lift=0.005)
+    assert path.kind == "hover" and path.T_world_cam.shape == (4, 4, 4)
+    assert reliefs == [1.25, 1.6, 2.0]  # retried with larger allowances, stopped at the first that covers
+    assert path.settings["lift"] == 0.005 and path.settings["relief_allowance"] == 2.0
+    assert path.settings["coverage_min"] >= 0.95 and path.settings["seed"] == 0
+    assert np.isclose(rc.centre_depth(path.T_world_cam[0]), 0.045)
+    with pytest.raises(ValueError, match="unknown option.*'hover': tilt"):
+        make_path("hover", rig=rig, rc=rc, tilt=3)
+
+
+def test_scene_stage_reports_path_errors_as_user_errors(tissue, tmp_path):
+    v, t, rc = tissue
+    with pytest.raises(UserError, match=r"^path: standoff must be positive, got -1.0$"):
+        make_description(v, t, SceneOptions(standoff=-1.0), rc=rc)
+    bad = tmp_path / "bad.json"
+    bad.write_text("[1]")
+    with pytest.raises(UserError) as exc:
+        make_description(v, t, SceneOptions(path_file=str(bad)), rc=rc)
+    assert str(exc.value).startswith(f"{bad}: a path file must hold a JSON object")

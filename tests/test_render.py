@@ -23,7 +23,7 @@ from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import UserError
 from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps
 from rgbd2scene.scene.model import Light, Material, Part, SceneDescription, SceneObject, tissue_object
-from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
 BASELINE = 0.005

@@ -11,7 +11,7 @@ import pytest
 
 from rgbd2scene.conventions import backproject, disparity_from_depth, flow_between_cameras, transform_points
 from rgbd2scene.groundtruth.raycast import raycaster
-from rgbd2scene.scene.path import look_at
+from rgbd2scene.scene.paths import look_at
 from rgbd2scene.scene.rig import StereoRig
 from rgbd2scene.verify.driver import Tolerances, format_report, verify_dataset
 

@@ -4,7 +4,7 @@ the dataset writer takes poses from and ``verify`` ray-casts (no ``bpy`` here).
 Like Kubric's core, the model knows nothing of Blender. It answers "where is everything at frame f" in
 plain numpy (float64):
 
-- the **camera** is the stereo rig on its track (:class:`~rgbd2scene.scene.path.CameraPath`): the
+- the **camera** is the stereo rig on its track (:class:`~rgbd2scene.scene.paths.CameraPath`): the
   left eye's ``T_world_cam`` per frame, the right eye +baseline along the left x axis;
 - every **object** (the tissue surface is one) owns its geometry, material, parts, motion and tracked
   frames. A **part** is one rigid piece with one instance id (1..65535) in the segmentation maps and a
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rgbd2scene.scene import folder
-from rgbd2scene.scene.path import CameraPath
+from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
 #: Looks of the tissue surface: the texture's colours exactly (unlit), or lit glossy wet tissue.

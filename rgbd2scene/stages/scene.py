@@ -22,7 +22,7 @@ from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
-from rgbd2scene.scene.path import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
+from rgbd2scene.scene.paths import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
 from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
 from rgbd2scene.stages.blender import Task, run_task
 
@@ -69,10 +69,16 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         raise UserError(f"--light: must be spot or point, got {options.light!r}")
     rig = options.rig()
     if options.path_file:
-        path: CameraPath = load_path_file(options.path_file)
+        try:
+            path: CameraPath = load_path_file(options.path_file)
+        except ValueError as exc:  # the message names the file
+            raise UserError(str(exc)) from None
     else:
-        path = make_path(options.path, vertices, triangles, rig, frames=options.frames, fps=options.fps,
-                         seed=options.seed, standoff=options.standoff, rc=rc)
+        try:
+            path = make_path(options.path, vertices, triangles, rig, frames=options.frames, fps=options.fps,
+                             seed=options.seed, standoff=options.standoff, rc=rc)
+        except ValueError as exc:
+            raise UserError(f"path: {exc}") from None
     light = Light(kind=options.light, power_w=options.light_power_w)
     return SceneDescription(rig, path, light, [tissue_object(options.material, folder.MESH, texture)])
 
