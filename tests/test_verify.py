@@ -13,7 +13,7 @@ from rgbd2scene.conventions import backproject, disparity_from_depth, flow_betwe
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.scene.path import look_at
 from rgbd2scene.scene.rig import StereoRig
-from rgbd2scene.verify.driver import Tolerances, format_report, verify_dataset
+from rgbd2scene.verify import Tolerances, format_report, verify_dataset
 
 W, H, FRAMES = 64, 32, 3
 
@@ -212,7 +212,7 @@ def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
 
 def _panel(path, key):
     """The image area of one panel of an error-map PNG (BGR)."""
-    from rgbd2scene.verify.driver import ERROR_PANELS, error_map_layout
+    from rgbd2scene.verify import ERROR_PANELS, error_map_layout
 
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     x, y, w, h = error_map_layout(W, H)[2][ERROR_PANELS.index(key)]
@@ -220,7 +220,7 @@ def _panel(path, key):
 
 
 def test_error_maps(dataset, tmp_path):
-    from rgbd2scene.verify.driver import ERROR_PANELS, error_map_layout
+    from rgbd2scene.verify import ERROR_PANELS, error_map_layout
 
     clean = verify_dataset(dataset, progress=False, error_maps=tmp_path / "clean")
     assert clean.ok
