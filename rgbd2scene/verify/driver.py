@@ -19,7 +19,7 @@ from rgbd2scene.errors import UserError
 from rgbd2scene.verify.checks import CHECKS
 from rgbd2scene.verify.error_maps import FrameErrors, keep_worst, write_error_maps
 from rgbd2scene.verify.framework import Check, EyeFrame, PairFrame, Tolerances, VerifyRun
-from rgbd2scene.verify.oracle import SHADINGS, scene_oracle
+from rgbd2scene.verify.oracle import SHADINGS, SceneOracle, scene_oracle
 from rgbd2scene.verify.report import VerifyReport
 
 #: Largest change of an object pose over the frames that still counts as not moving.
@@ -29,7 +29,8 @@ STILL_POSE = 1e-9
 def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
                    tolerances: Tolerances | None = None, *, progress: bool = True, frames: Iterable[int] | None = None,
                    normals: str = "smooth", mesh_ids: Iterable[int] | None = None,
-                   error_maps: str | Path | None = None, checks: Sequence[Check] = CHECKS) -> VerifyReport:
+                   error_maps: str | Path | None = None, checks: Sequence[Check] = CHECKS,
+                   oracle: SceneOracle | None = None) -> VerifyReport:
     """Check a dataset folder (CONVENTIONS.md section 4) for self-consistency.
 
     Parameters
@@ -49,10 +50,14 @@ def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
         the flow check (``flow_left_frame000007.png``); see ``error_maps.render_error_map``. Their paths are
         listed in ``report.error_maps``. Only the worst frame's maps are held in memory.
     checks : the checks to run (default all registered ones, ``checks.CHECKS``).
+    oracle : the scene model to ray cast instead of the scene mesh (a :class:`~rgbd2scene.verify.oracle.SceneOracle`,
+        e.g. one that poses moving objects per frame); ``mesh_path``, ``normals`` and ``mesh_ids`` then do not apply.
     """
     from tqdm import tqdm
 
     t_start = time.perf_counter()
+    if oracle is not None and mesh_path is not None:
+        raise ValueError("give mesh_path or oracle, not both")
     if normals not in SHADINGS:
         raise ValueError(f"normals must be one of {SHADINGS}, not {normals!r}")
     dataset = Dataset(dataset_dir)
@@ -68,7 +73,9 @@ def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
 
     poses, object_poses = _read_poses(dataset)
     moving = _moving_ids(dataset, object_poses)
-    oracle, no_oracle = scene_oracle(dataset, mesh_path, shading=normals, ids=mesh_ids, moving=moving)
+    no_oracle = ""
+    if oracle is None:
+        oracle, no_oracle = scene_oracle(dataset, mesh_path, shading=normals, ids=mesh_ids, moving=moving)
     run = VerifyRun(dataset, width, height, baseline, K, tolerances or Tolerances(), oracle, moving, poses)
     active = [check for check in checks if oracle is not None or not check.needs_oracle]
     for check in checks:

@@ -174,6 +174,10 @@ class VerifyRun:
     _depths: dict[tuple[str, int], np.ndarray | None] = field(default_factory=dict)
 
     @property
+    def shape(self) -> tuple[int, int]:
+        return self.height, self.width
+
+    @property
     def last(self) -> int:
         return self.dataset.frames - 1
 
@@ -198,10 +202,6 @@ class VerifyRun:
         self._depths[(eye, index)] = depth
         while len(self._depths) > DEPTH_CACHE:
             del self._depths[next(iter(self._depths))]
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.height, self.width
 
 
 @dataclass(frozen=True)
@@ -265,13 +265,13 @@ class EyeFrame:
         return frame_paths(self.run.dataset.root, self.eye, self.index)
 
     @cached_property
-    def keys(self) -> KeyCheck:
+    def key_check(self) -> KeyCheck:
         return check_keys(self.gt or {}, *self.run.shape)
 
     @property
     def usable(self) -> bool:
         """Readable, with depth, K and T_world_cam of the right shape."""
-        return self.gt is not None and not self.keys.bad_keys & set(CORE_KEYS)
+        return self.gt is not None and not self.key_check.bad_keys & set(CORE_KEYS)
 
     def map(self, key: str) -> np.ndarray | None:
         """A per-pixel map of the schema if present with its schema shape, else None."""

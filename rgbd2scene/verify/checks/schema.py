@@ -34,7 +34,7 @@ class SchemaCheck(Check):
             frame.add("schema", "files with issues", 1.0, 0.0)
             return
         _check_rgb(frame)
-        issues = list(frame.keys.issues)
+        issues = list(frame.key_check.issues)
         if frame.usable:
             issues += _check_values(frame)
         frame.add("schema", "files with issues", float(bool(issues)), 0.0)
