@@ -195,6 +195,20 @@ def test_tolerances_and_errors(dataset, tmp_path):
         verify_dataset(dataset, mesh_path=tmp_path / "absent.ply", progress=False)
 
 
+def test_mesh_from_a_textured_obj(dataset, tmp_path):
+    """An OBJ with one UV per vertex, as ``rgbd2scene mesh`` writes it: smooth normals need its shared vertices."""
+    from rgbd2scene.files.meshio import write_textured_obj
+    from rgbd2scene.reconstruct.mesh import Mesh
+
+    v, t = bumpy_grid()
+    uvs = (v[:, :2] - v[:, :2].min(axis=0)) / np.ptp(v[:, :2], axis=0)
+    mesh = Mesh(vertices=v, triangles=t, vertex_colors=None, uvs=uvs.astype(np.float32), pixels=None,
+                texture=np.full((4, 4, 3), 128, np.uint8))
+    obj = write_textured_obj(tmp_path, mesh)["obj"]
+    report = verify_dataset(dataset, mesh_path=obj, progress=False)
+    assert report.status_of("normals") == "pass" and report.status_of("depth") == "pass", format_report(report)
+
+
 def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
     """Depth rendered through (u + 0.5 - cx) / fx (Open3D's create_rays_pinhole) instead of pixel centres."""
     d = shutil.copytree(dataset, tmp_path / "half_pixel")

@@ -120,16 +120,20 @@ def scene_mesh_file(dataset: Dataset, mesh_path: str | Path | None = None) -> tu
 
 
 def read_mesh(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and triangles of a mesh file (PLY, or any format Open3D reads)."""
+    """Vertices and triangles of a mesh file (PLY, or any format Open3D reads), vertices as stored."""
     if path.suffix.lower() == ".ply":
         from rgbd2scene.files.meshio import read_ply
 
         mesh = read_ply(path)
         return mesh.vertices, mesh.triangles
-    from rgbd2scene.pictures.preview import load_mesh
+    import open3d as o3d
 
-    mesh = load_mesh(path)
-    return np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    # No post-processing: it splits vertices at texture seams (an OBJ with UVs: one vertex per corner), and
+    # smooth normals need the shared vertices.
+    mesh = o3d.io.read_triangle_mesh(str(path), enable_post_processing=False)
+    if not mesh.has_vertices():
+        raise UserError(f"{path}: not a readable mesh (no vertices)")
+    return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.triangles)
 
 
 def scene_oracle(dataset: Dataset, mesh_path: str | Path | None = None, *, shading: str = "smooth", ids=None,
