@@ -165,7 +165,7 @@ def cmd_render(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    from rgbd2scene.verify.driver import format_report, verify_dataset
+    from rgbd2scene.verify import format_report, verify_dataset
 
     report = verify_dataset(args.dataset, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
     print(format_report(report))

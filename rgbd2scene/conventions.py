@@ -88,12 +88,12 @@ def blender_pose_from_opencv(T_world_cam: np.ndarray) -> np.ndarray:
     return np.asarray(T_world_cam, dtype=np.float64) @ BLENDER_FROM_OPENCV
 
 
-def disparity_from_depth(depth: np.ndarray, fx: float, baseline: float) -> np.ndarray:
-    """Disparity d = fx*B/z in pixels (float32, NaN where depth is NaN or not positive)."""
+def disparity_from_depth(depth: np.ndarray, fx: float, baseline: float, dtype=np.float32) -> np.ndarray:
+    """Disparity d = fx*B/z in pixels (``dtype``, float32 as stored; NaN where depth is NaN or not positive)."""
     z = np.asarray(depth, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         d = np.where(z > 0, fx * baseline / z, np.nan)
-    return d.astype(np.float32)
+    return d.astype(dtype, copy=False)
 
 
 def depth_from_disparity(disparity: np.ndarray, fx: float, baseline: float) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -13,7 +14,8 @@ from rgbd2scene.conventions import backproject, disparity_from_depth, flow_betwe
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.scene.paths import look_at
 from rgbd2scene.scene.rig import StereoRig
-from rgbd2scene.verify.driver import Tolerances, format_report, verify_dataset
+from rgbd2scene.verify import Check, StaticMeshOracle, Tolerances, format_report, verify_dataset
+from rgbd2scene.verify.checks import CHECKS
 
 W, H, FRAMES = 64, 32, 3
 
@@ -193,6 +195,20 @@ def test_tolerances_and_errors(dataset, tmp_path):
         verify_dataset(dataset, mesh_path=tmp_path / "absent.ply", progress=False)
 
 
+def test_mesh_from_a_textured_obj(dataset, tmp_path):
+    """An OBJ with one UV per vertex, as ``rgbd2scene mesh`` writes it: smooth normals need its shared vertices."""
+    from rgbd2scene.files.meshio import write_textured_obj
+    from rgbd2scene.reconstruct.mesh import Mesh
+
+    v, t = bumpy_grid()
+    uvs = (v[:, :2] - v[:, :2].min(axis=0)) / np.ptp(v[:, :2], axis=0)
+    mesh = Mesh(vertices=v, triangles=t, vertex_colors=None, uvs=uvs.astype(np.float32), pixels=None,
+                texture=np.full((4, 4, 3), 128, np.uint8))
+    obj = write_textured_obj(tmp_path, mesh)["obj"]
+    report = verify_dataset(dataset, mesh_path=obj, progress=False)
+    assert report.status_of("normals") == "pass" and report.status_of("depth") == "pass", format_report(report)
+
+
 def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
     """Depth rendered through (u + 0.5 - cx) / fx (Open3D's create_rays_pinhole) instead of pixel centres."""
     d = shutil.copytree(dataset, tmp_path / "half_pixel")
@@ -212,7 +228,7 @@ def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
 
 def _panel(path, key):
     """The image area of one panel of an error-map PNG (BGR)."""
-    from rgbd2scene.verify.driver import ERROR_PANELS, error_map_layout
+    from rgbd2scene.verify import ERROR_PANELS, error_map_layout
 
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     x, y, w, h = error_map_layout(W, H)[2][ERROR_PANELS.index(key)]
@@ -220,7 +236,7 @@ def _panel(path, key):
 
 
 def test_error_maps(dataset, tmp_path):
-    from rgbd2scene.verify.driver import ERROR_PANELS, error_map_layout
+    from rgbd2scene.verify import ERROR_PANELS, error_map_layout
 
     clean = verify_dataset(dataset, progress=False, error_maps=tmp_path / "clean")
     assert clean.ok
@@ -282,3 +298,111 @@ def test_error_maps_without_mesh(dataset, tmp_path):
     names = sorted(p.rsplit("/", 1)[-1] for p in report.error_maps)
     assert [n.split("_frame")[0] for n in names] == ["flow_left", "flow_right"], names  # no depth check
     assert np.all(_panel(report.error_maps[0], "depth") == 45, axis=-1).mean() > 0.9  # "not available"
+
+
+def test_relative_scene_folder_is_relative_to_the_dataset(dataset, tmp_path, monkeypatch):
+    d = shutil.copytree(dataset, tmp_path / "data" / "dataset")
+    scene = tmp_path / "data" / "scene"
+    scene.mkdir()
+    shutil.copy(dataset.parent / "mesh.ply", scene / "mesh.ply")
+    meta = json.loads((d / "dataset.json").read_text())
+    meta["scene"] = {"dir": "../scene"}
+    (d / "dataset.json").write_text(json.dumps(meta))
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")  # not the dataset's parent: relative to the dataset, not here
+    report = verify_dataset(d, progress=False)
+    assert report.mesh is not None and Path(report.mesh).resolve() == (scene / "mesh.ply").resolve()
+    assert report.status_of("depth") == "pass", format_report(report)
+
+
+def test_damaged_npz_is_a_problem_line(dataset, tmp_path):
+    from rgbd2scene.dataset import Dataset
+    from rgbd2scene.errors import UserError
+
+    d = shutil.copytree(dataset, tmp_path / "damaged")
+    npz = d / "left" / "gt" / "000001.npz"
+    npz.write_bytes(npz.read_bytes()[:1000])  # a killed copy: the zip directory is gone
+    with pytest.raises(UserError, match="unreadable ground truth"):
+        Dataset(d).gt("left", 1)
+    report = verify_dataset(d, progress=False)
+    assert "frame 000001 left: unreadable left/gt/000001.npz" in report.problems
+    assert report.status_of("schema") == "fail" and report.status_of("depth") == "pass"
+
+
+class DepthRangeCheck(Check):
+    """A check defined outside the package: the largest depth of each eye and frame."""
+
+    names = ("depth_range",)
+    maps = ("depth",)
+
+    def __init__(self, max_m: float):
+        self.max_m = max_m
+
+    def check_eye(self, frame):
+        frame.add("depth_range", "max depth", float(np.nanmax(frame.depth)) * 1000.0, self.max_m * 1000.0, unit="mm")
+
+
+def test_a_check_is_one_class_in_the_registry(dataset):
+    report = verify_dataset(dataset, progress=False, checks=(*CHECKS, DepthRangeCheck(max_m=0.1)))
+    rows = [r for r in report.results if r.check == "depth_range"]
+    assert [r.eye for r in rows] == ["left", "right"] and all(r.status == "pass" for r in rows)
+    assert all(20 < r.value < 60 for r in rows)  # the bumpy surface lies about 3 cm ahead
+    assert report.results[-1].check == "depth_range" and report.ok  # reported after the registered checks
+    tight = verify_dataset(dataset, progress=False, checks=(DepthRangeCheck(max_m=0.01),))
+    assert not tight.ok and {r.check for r in tight.results} == {"depth_range"}
+
+
+def test_static_mesh_oracle_ids_and_covered_pixels():
+    v, t = bumpy_grid()
+    first_half = np.arange(len(t)) < len(t) // 2
+    oracle = StaticMeshOracle(raycaster(v, t), "bumpy", ids=[1], moving={2}, triangle_ids=np.where(first_half, 3, 4))
+    rig = StereoRig.endoscope(W, H)
+    T = look_at([-0.004, 0.0, 0.004], [-0.003, 0.003, 0.033], [0.2, -1, 0])
+    cast = oracle.cast(0, rig.intrinsics.K, T, W, H)
+    assert cast.depth.shape == (H, W) and cast.normals.shape == (H, W, 3) and cast.face_normals is not None
+    assert np.array_equal(cast.instance_ids == 0, ~cast.hit) and set(np.unique(cast.instance_ids)) == {0, 3, 4}
+    seg = np.array([[0, 1, 2, 5]], np.uint16)
+    assert oracle.covers(0, seg).tolist() == [[True, True, False, False]]
+    with pytest.raises(ValueError, match="one id per triangle"):
+        StaticMeshOracle(raycaster(v, t), "bumpy", triangle_ids=[1, 2])
+
+
+def test_a_per_frame_oracle_replaces_the_static_mesh(dataset, tmp_path):
+    """Tissue that slides 1 mm per frame along x: the static mesh no longer explains the depth, a scene
+    oracle that poses the mesh per frame does."""
+    v, t = bumpy_grid()
+    rc = raycaster(v, t)
+    slide = np.array([0.001, 0.0, 0.0])
+
+    def camera_in_mesh_frame(T, frame):  # moving the mesh by +s is moving the camera by -s
+        T = np.array(T, np.float64)
+        T[:3, 3] -= frame * slide
+        return T
+
+    d = shutil.copytree(dataset, tmp_path / "sliding")
+    for eye in ("left", "right"):
+        for f in range(FRAMES):
+            p = d / eye / "gt" / f"{f:06d}.npz"
+            with np.load(p) as z:
+                gt = {k: z[k] for k in z.files}
+            gt["depth"] = rc.cast(gt["K"], W, H, camera_in_mesh_frame(gt["T_world_cam"], f), normals="none")["depth"]
+            np.savez_compressed(p, **gt)
+
+    class SlidingTissue:
+        source, shading = "bumpy grid sliding 1 mm per frame", "smooth"
+
+        def __init__(self):
+            self.mesh = StaticMeshOracle(rc, self.source)
+
+        def cast(self, frame, K, T_world_cam, width, height):
+            return self.mesh.cast(frame, K, camera_in_mesh_frame(T_world_cam, frame), width, height)
+
+        def covers(self, frame, segmentation):
+            return np.ones(segmentation.shape, bool)
+
+    assert verify_dataset(d, progress=False).status_of("depth") == "fail"
+    report = verify_dataset(d, progress=False, oracle=SlidingTissue())
+    assert report.status_of("depth") == "pass", format_report(report)
+    assert report.mesh == SlidingTissue.source
+    with pytest.raises(ValueError, match="not both"):
+        verify_dataset(d, progress=False, oracle=SlidingTissue(), mesh_path=dataset.parent / "mesh.ply")

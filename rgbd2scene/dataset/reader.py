@@ -140,7 +140,9 @@ class Dataset:
                 if missing:
                     raise UserError(f"{path}: no {', '.join(missing)} in this file (rendered with --gt?)")
                 return {k: z[k] for k in names}
-        except (OSError, ValueError) as exc:
+        except UserError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a damaged npz raises BadZipFile, zlib.error, TokenError, ...
             raise UserError(f"{path}: unreadable ground truth ({exc})") from None
 
     def pose(self, eye: str, index: int) -> np.ndarray:
@@ -159,8 +161,16 @@ class Dataset:
     @property
     def scene_dir(self) -> Path | None:
         """The scene folder (stored relative to the dataset; older datasets hold an absolute path)."""
+        return self._scene_path("dir")
+
+    @property
+    def scene_mesh(self) -> Path | None:
+        """The scene's mesh file as recorded (``scene.mesh``; relative to the dataset, like :attr:`scene_dir`)."""
+        return self._scene_path("mesh")
+
+    def _scene_path(self, key: str) -> Path | None:
         scene = self.meta.get("scene") or {}
-        where = scene.get("dir") if isinstance(scene, dict) else None
+        where = scene.get(key) if isinstance(scene, dict) else None
         if not where:
             return None
         p = Path(where)

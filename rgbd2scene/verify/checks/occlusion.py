@@ -1,0 +1,71 @@
+"""``occlusion``: the ``occluded_forward`` / ``occluded_backward`` flags agree with the geometry.
+
+Each surface point is moved into the next / previous frame of the same eye (K and the two poses) and looked
+up in that frame's depth: where the depth there matches, the point is clearly visible; where every
+neighbouring depth there is clearly nearer, or the point leaves the image, it is clearly hidden. A flag that
+contradicts a clear case counts (static surface only; the ambiguous cases in between are not judged).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rgbd2scene.conventions import backproject, invert_pose, project, transform_points
+from rgbd2scene.verify.framework import Check, EyeFrame
+
+#: flag map -> step to the other frame
+DIRECTIONS = {"occluded_forward": 1, "occluded_backward": -1}
+
+
+class OcclusionCheck(Check):
+    names = ("occlusion",)
+    maps = tuple(DIRECTIONS)
+
+    def check_eye(self, frame: EyeFrame) -> None:
+        for key, step in DIRECTIONS.items():
+            flags, other = frame.map(key), frame.index + step
+            if flags is None or not 0 <= other <= frame.run.last:
+                continue
+            T_other, depth_other = frame.pose(other), frame.depth_at(other)
+            if T_other is None or depth_other is None:
+                continue
+            visible, hidden = occlusion_reference(np.where(frame.surface, frame.depth, np.nan), frame.K,
+                                                  frame.T_world_cam, T_other, depth_other, frame.run.tol.occlusion_rel)
+            flags = flags.astype(bool)
+            wrong = ((flags & visible) | (~flags & hidden)) & frame.static
+            if frame.surface.any():
+                frame.add("occlusion", f"{key} contradicting geometry (frac)", float(wrong.sum() / frame.surface.sum()),
+                          frame.run.tol.occlusion_disagree)
+
+
+def occlusion_reference(depth: np.ndarray, K: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, depth_b: np.ndarray,
+                        rel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of camera a whose surface point is clearly visible / clearly hidden (or outside) in camera b.
+
+    Parameters
+    ----------
+    depth : (H, W) planar depth of camera a, NaN where there is no surface.
+    K : (3, 3) intrinsics of both cameras; T_a, T_b : (4, 4) their T_world_cam.
+    depth_b : (H, W) planar depth of camera b.
+    rel : relative depth difference that separates visible from hidden.
+
+    Returns
+    -------
+    visible, hidden : bool (H, W) each.
+    """
+    h, w = depth.shape
+    surface = np.isfinite(depth)
+    pts = transform_points(invert_pose(T_b) @ T_a, backproject(depth, K))
+    z = pts[..., 2]
+    u, v = project(pts, K)
+    with np.errstate(invalid="ignore"):
+        outside = surface & ~((u >= -0.5) & (u < w - 0.5) & (v >= -0.5) & (v < h - 0.5))
+    inside = surface & ~outside
+    u0 = np.clip(np.floor(np.nan_to_num(u)), 0, w - 2).astype(np.int64) if w > 1 else np.zeros((h, w), int)
+    v0 = np.clip(np.floor(np.nan_to_num(v)), 0, h - 2).astype(np.int64) if h > 1 else np.zeros((h, w), int)
+    zs = np.stack([depth_b[np.minimum(v0 + dv, h - 1), np.minimum(u0 + du, w - 1)]
+                   for dv in (0, 1) for du in (0, 1)], axis=-1).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        close = np.any(np.abs(zs - z[..., None]) <= rel * z[..., None], axis=-1)
+        hidden = np.all(zs < (z * (1 - rel))[..., None], axis=-1)  # NaN compares False: not hidden
+    return inside & close, outside | (inside & hidden & ~close)
