@@ -39,17 +39,10 @@ def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None
     cam.add_argument("--preset", help="named camera: primesense (default), kinect_v1, tum_fr1, tum_fr2, tum_fr3")
     g.add_argument("--depth-scale", type=float, help="depth units per metre (1000 for mm PNG, 5000 for TUM)")
     g.add_argument("--depth-format", default="auto", help="auto, png, sun, nyu, exr, npy")
-    m = p.add_argument_group("reconstruction")
-    m.add_argument("--fill", default="auto", help="hole filling: auto, inpaint, colorization, biharmonic, "
-                   "background, none (default auto)")
-    m.add_argument("--max-jump", type=float, default=0.03,
-                   help="drop triangles whose relative depth jump exceeds this (default 0.03)")
-    m.add_argument("--max-grazing", type=float, default=85.0,
-                   help="drop triangles seen more obliquely than this many degrees (default 85)")
-    m.add_argument("--smooth", default="ray", help="smoothing: ray (keeps texture registered), taubin, "
-                   "corrective, none (default ray)")
-    m.add_argument("--smooth-iterations", type=int, default=10, help="smoothing strength (default 10)")
-    m.add_argument("--no-overview", action="store_true", help="skip overview.png")
+    from rgbd2scene.options import add_arguments
+    from rgbd2scene.reconstruct.pipeline import MeshOptions
+
+    add_arguments(p.add_argument_group("reconstruction"), MeshOptions)
 
 
 def _load_capture(args):
@@ -69,11 +62,10 @@ def _load_capture(args):
 
 
 def _mesh_options(args):
+    from rgbd2scene.options import from_args
     from rgbd2scene.reconstruct.pipeline import MeshOptions
 
-    return MeshOptions(fill=args.fill, max_relative_jump=args.max_jump, max_grazing_deg=args.max_grazing,
-                       smooth=args.smooth, smooth_iterations=args.smooth_iterations,
-                       overview=not args.no_overview)
+    return from_args(MeshOptions, args)
 
 
 def cmd_mesh(args) -> int:
@@ -95,44 +87,24 @@ def cmd_mesh(args) -> int:
 
 
 def _add_scene_args(p: argparse.ArgumentParser) -> None:
-    from rgbd2scene.scene.model import MATERIALS
-    from rgbd2scene.scene.paths import PATH_GENERATORS
+    from rgbd2scene.options import add_arguments
     from rgbd2scene.stages.scene import SceneOptions
 
-    d = SceneOptions()  # the defaults shown in --help
     g = p.add_argument_group("scene")
     g.add_argument("--mesh-dir", help="build from a folder made by 'rgbd2scene mesh' instead of --rgb/--depth")
-    g.add_argument("--size", type=parse_size, default=d.size, help="endoscope image size WxH (default 512x256)")
-    g.add_argument("--fov", type=float, default=d.fov_x_deg, help="horizontal field of view, degrees (default 70)")
-    g.add_argument("--scope-camera", help="endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, height); "
-                   "overrides --size and --fov")
-    g.add_argument("--baseline", type=float, default=d.baseline, help="stereo baseline, metres (default 0.005)")
-    g.add_argument("--path", default=d.path, choices=list(PATH_GENERATORS),
-                   help="generated camera path (default scan)")
-    g.add_argument("--path-file", help="JSON path file of waypoints (overrides --path)")
-    g.add_argument("--frames", type=int, default=d.frames, help="frames in the path (default 60)")
-    g.add_argument("--fps", type=float, default=d.fps, help="frames per second (default 30)")
-    g.add_argument("--standoff", type=float, default=d.standoff, help="distance to the tissue, metres (default 0.04)")
-    g.add_argument("--seed", type=int, default=d.seed, help="seed of generated paths (default 0)")
-    g.add_argument("--material", default=d.material, choices=MATERIALS, help="tissue look (default wet_tissue)")
-    g.add_argument("--light", default=d.light, choices=("spot", "point"), help="light at the tip (default spot)")
-    g.add_argument("--light-power", type=float, default=d.light_power_w, help="light power, watts (default 0.05)")
+    add_arguments(g, SceneOptions)
 
 
 def cmd_scene(args) -> int:
-    from rgbd2scene.capture.camera import load_camera_json
     from rgbd2scene.files.atomic import ensure_output_dir
+    from rgbd2scene.options import from_args
     from rgbd2scene.reconstruct.pipeline import reconstruct
     from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
     from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder
 
     t0 = time.perf_counter()
     out = ensure_output_dir(args.output)
-    scope = load_camera_json(args.scope_camera)[0] if args.scope_camera else None
-    options = SceneOptions(size=args.size, fov_x_deg=args.fov, intrinsics=scope, baseline=args.baseline, path=args.path,
-                           path_file=args.path_file, frames=args.frames, fps=args.fps, standoff=args.standoff,
-                           seed=args.seed, material=args.material, light=args.light,
-                           light_power_w=args.light_power)
+    options = from_args(SceneOptions, args)
     if args.mesh_dir:
         mesh, record = load_mesh_folder(args.mesh_dir, out)
     elif args.rgb and args.depth:

@@ -98,8 +98,9 @@ def add_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls
             kind = None
         if default is not None and help_text and "default" not in help_text:
             help_text = f"{help_text} (default {_describe_default(default)})"
+        metavar = meta.get("metavar") or (None if meta.get("choices") else flag.lstrip("-").upper().replace("-", "_"))
         parser.add_argument(flag, dest=f.name, type=kind, default=default, choices=meta.get("choices"),
-                            help=help_text, metavar=meta.get("metavar"))
+                            help=help_text, metavar=metavar)
 
 
 def from_args(cls, args: argparse.Namespace, **overrides):

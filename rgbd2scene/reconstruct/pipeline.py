@@ -10,24 +10,30 @@ from dataclasses import dataclass, field
 
 from rgbd2scene.capture.readers import Capture
 from rgbd2scene.errors import UserError
-from rgbd2scene.reconstruct.fill import FillResult, fill_depth
+from rgbd2scene.options import option, to_record
+from rgbd2scene.reconstruct.fill import FILL_METHODS, FillResult, fill_depth
 from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
+from rgbd2scene.reconstruct.smooth import METHODS as SMOOTH_METHODS
 from rgbd2scene.reconstruct.smooth import smooth_mesh
 
 
 @dataclass
 class MeshOptions:
-    """Every setting of the reconstruction stage (recorded in scene.json)."""
+    """Every setting of the reconstruction stage (CLI flags, batch keys, the record in scene.json)."""
 
-    fill: str = "auto"
-    max_relative_jump: float = 0.03
-    max_grazing_deg: float = 85.0
-    smooth: str = "ray"
-    smooth_iterations: int = 10
-    overview: bool = True
+    fill: str = option("auto", "hole filling: auto, inpaint, colorization, biharmonic, background, none",
+                       choices=FILL_METHODS)
+    max_relative_jump: float = option(0.03, "drop triangles whose relative depth jump exceeds this",
+                                      flag="--max-jump")
+    max_grazing_deg: float = option(85.0, "drop triangles seen more obliquely than this many degrees",
+                                    flag="--max-grazing")
+    smooth: str = option("ray", "smoothing: ray (keeps texture registered), taubin, corrective, none",
+                         choices=SMOOTH_METHODS)
+    smooth_iterations: int = option(10, "smoothing strength")
+    overview: bool = option(True, "skip overview.png")
 
     def to_dict(self) -> dict:
-        return dict(self.__dict__)
+        return to_record(self)
 
 
 @dataclass

@@ -14,45 +14,59 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.capture.camera import Intrinsics, load_camera_json
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import write_json
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
-from rgbd2scene.scene.paths import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
+from rgbd2scene.scene.paths import (
+    DEFAULT_STANDOFF,
+    PATH_GENERATORS,
+    CameraPath,
+    load_path_file,
+    make_path,
+    path_coverage,
+)
 from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
 from rgbd2scene.stages.blender import Task, run_task
+from rgbd2scene.stages.render import parse_size
+
+
+def _scope_camera(path: str) -> Intrinsics:
+    return load_camera_json(path)[0]
 
 
 @dataclass
 class SceneOptions:
     """Everything the user chooses about the scene (defaults: a da Vinci-class scope scanning tissue)."""
 
-    size: tuple[int, int] = DEFAULT_SIZE
-    fov_x_deg: float = DEFAULT_FOV_X_DEG
-    intrinsics: Intrinsics | None = None  # exact fx, fy, cx, cy (overrides size and fov)
-    baseline: float = DEFAULT_BASELINE
-    path: str = "scan"
-    path_file: str | None = None
-    frames: int = 60
-    fps: float = 30.0
-    standoff: float = DEFAULT_STANDOFF
-    seed: int = 0
-    material: str = "wet_tissue"
-    light: str = "spot"
-    light_power_w: float = 0.05
+    size: tuple[int, int] = option(DEFAULT_SIZE, "endoscope image size WxH", parse=parse_size, metavar="WxH")
+    fov_x_deg: float = option(DEFAULT_FOV_X_DEG, "horizontal field of view, degrees", flag="--fov")
+    scope_camera: str | None = option(None, "endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, "
+                                      "height); overrides --size and --fov")
+    baseline: float = option(DEFAULT_BASELINE, "stereo baseline, metres")
+    path: str = option("scan", "generated camera path", choices=tuple(PATH_GENERATORS))
+    path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)")
+    frames: int = option(60, "frames in the path")
+    fps: float = option(30.0, "frames per second")
+    standoff: float = option(DEFAULT_STANDOFF, "distance to the tissue, metres")
+    seed: int = option(0, "seed of generated paths")
+    material: str = option("wet_tissue", "tissue look", choices=MATERIALS)
+    light: str = option("spot", "light at the tip", choices=("spot", "point"))
+    light_power_w: float = option(0.05, "light power, watts", flag="--light-power")
 
     def rig(self) -> StereoRig:
+        """The stereo rig; :class:`OptionError` naming the field when a value is implausible."""
         if self.baseline <= 0 or self.baseline > 0.1:
-            raise UserError(f"--baseline: {self.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
-        if self.intrinsics is not None:
-            intr = self.intrinsics
-        else:
-            intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
-            intr.check("--fov/--size")
+            raise OptionError("baseline", f"{self.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
+        if self.scope_camera is not None:
+            return StereoRig(_scope_camera(self.scope_camera), self.baseline)
+        intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
+        intr.check("--fov/--size")
         return StereoRig(intr, self.baseline)
 
 
@@ -67,7 +81,10 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         raise UserError(f"--material: unknown material {options.material!r}; choose one of {', '.join(MATERIALS)}")
     if options.light not in ("spot", "point"):
         raise UserError(f"--light: must be spot or point, got {options.light!r}")
-    rig = options.rig()
+    try:
+        rig = options.rig()
+    except OptionError as exc:
+        raise UserError(f"{flag_of(SceneOptions, exc.name)}: {exc.message}") from None
     if options.path_file:
         try:
             path: CameraPath = load_path_file(options.path_file)
@@ -102,8 +119,7 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
     timings["blend_s"] = time.perf_counter() - t0
     record = dict(record)
     record["scene"] = desc.to_dict()
-    record["scene_options"] = {k: (list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, Intrinsics)
-                                   else v) for k, v in options.__dict__.items()}
+    record["scene_options"] = to_record(options)
     record["coverage"] = {"min": float(coverage.min()), "mean": float(coverage.mean()),
                           "per_frame_left_right": coverage.round(4).tolist(), "check_scale": 0.5}
     record["blend"] = folder.SCENE_BLEND
