@@ -55,6 +55,7 @@ from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
+from rgbd2scene.scene.deformation import Deformation, rest_normals
 from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
 from rgbd2scene.scene.paths import CameraPath
 
@@ -86,7 +87,7 @@ def build_scene(description: SceneDescription, scene_dir: str | Path, blend_path
         if builder is None:
             raise ValueError(f"object {obj.name!r}: no Blender builder for kind {obj.kind!r} "
                              f"(known: {', '.join(sorted(BUILDERS))})")
-        builder(scene, obj, Path(scene_dir))
+        builder(scene, obj, Path(scene_dir), description)
 
     camera = add_stereo_camera(scene, description.rig.intrinsics, description.rig.baseline,
                                description.rig.clip_start, description.rig.clip_end)
@@ -101,9 +102,9 @@ def build_scene(description: SceneDescription, scene_dir: str | Path, blend_path
 
 # --- objects: one builder per kind ---------------------------------------------------------------------
 
-def build_mesh_object(scene, obj: SceneObject, scene_dir: Path) -> list:
+def build_mesh_object(scene, obj: SceneObject, scene_dir: Path, description: SceneDescription) -> list:
     """Each part: its geometry file, its material (texture or vertex colours), its instance id as
-    ``pass_index``, keyed on its poses. The tissue's single part is the object "Tissue"."""
+    ``pass_index``, keyed on its poses and its deformation. The tissue's single part is the object "Tissue"."""
     made = []
     for part in obj.parts:
         mesh = read_ply(scene_dir / part.geometry)
@@ -119,8 +120,36 @@ def build_mesh_object(scene, obj: SceneObject, scene_dir: Path) -> list:
         bobj = add_tissue(mesh, make_material(part.material.kind, image), part.id, name=name)
         if part.poses is not None:
             key_poses(scene, bobj, part.poses)
+        if part.deformation is not None:
+            key_deformation(bobj, mesh, part.deformation, description.path.frames, description.path.fps)
         made.append(bobj)
     return made
+
+
+def key_deformation(bobj, mesh, deformation: Deformation, frames: int, fps: float) -> None:
+    """The deformation as shape keys: one per basis field B_k (``rest + n B_k``), its value c_k(f / fps)
+    keyed on every frame f (linear), so Blender's mix ``rest + sum_k c_k (key_k - rest)`` is the formula
+    of :mod:`rgbd2scene.scene.deformation` and the Vector pass sees the surface's own motion."""
+    rest = np.asarray(mesh.vertices, dtype=np.float64)
+    normals = rest_normals(rest, mesh.triangles)
+    fields = deformation.basis(rest)
+    coefficients = deformation.coefficients(np.arange(frames) / fps).reshape(len(fields), -1)
+    bobj.shape_key_add(name="Basis", from_mix=False)
+    frame_numbers = np.arange(frames, dtype=np.float64)
+    action = bpy.data.actions.new(f"{bobj.name}Deformation")
+    keys = bobj.data.shape_keys
+    keys.animation_data_create()
+    keys.animation_data.action = action
+    for k, field_k in enumerate(fields):
+        block = bobj.shape_key_add(name=f"deform_{k}", from_mix=False)
+        block.slider_min, block.slider_max = -10.0, 10.0
+        block.data.foreach_set("co", (rest + normals * field_k[:, None]).astype(np.float32).ravel())
+        fcurve = action.fcurve_ensure_for_datablock(keys, f'key_blocks["{block.name}"].value')
+        fcurve.keyframe_points.add(frames)
+        fcurve.keyframe_points.foreach_set("co", np.stack([frame_numbers, coefficients[k]], 1).ravel())
+        for key in fcurve.keyframe_points:
+            key.interpolation = "LINEAR"
+        fcurve.update()
 
 
 #: Object kind (``SceneObject.kind``) -> the function that builds it into the scene.

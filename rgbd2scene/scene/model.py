@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rgbd2scene.scene import folder
+from rgbd2scene.scene.deformation import Deformation, SurfaceAnchor, rotation_between
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
@@ -96,7 +97,8 @@ class Part:
     """One rigid piece of an object with its own instance id and class.
 
     ``poses`` are ``T_world_part`` (F, 4, 4) float64, one per frame (a single pose: static); None means
-    the part's frame is the world frame (the reconstructed tissue).
+    the part's frame is the world frame (the reconstructed tissue). ``deformation`` moves its vertices
+    along their rest normals over time (:mod:`rgbd2scene.scene.deformation`), in the part's frame.
     """
 
     id: int
@@ -105,6 +107,7 @@ class Part:
     geometry: str
     material: Material = field(default_factory=Material)
     poses: np.ndarray | None = None
+    deformation: Deformation | None = None
 
     def __post_init__(self):
         self.id = int(self.id)
@@ -117,30 +120,39 @@ class Part:
 
     @property
     def moving(self) -> bool:
-        return self.poses is not None and len(self.poses) > 1 and not np.all(self.poses == self.poses[0])
+        """Whether the part moves or deforms over the frames (rigid motion or a deformation)."""
+        rigid = self.poses is not None and len(self.poses) > 1 and not np.all(self.poses == self.poses[0])
+        return rigid or (self.deformation is not None and self.deformation.amplitude_m > 0)
 
     def to_dict(self) -> dict:
         return {"id": self.id, "name": self.name, "class": self.cls, "geometry": self.geometry,
                 "material": self.material.to_dict(),
-                "poses": None if self.poses is None else self.poses.tolist()}
+                "poses": None if self.poses is None else self.poses.tolist(),
+                "deformation": None if self.deformation is None else self.deformation.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> Part:
+        deformation = d.get("deformation")
         return cls(int(d["id"]), str(d["name"]), str(d.get("class", "")), str(d["geometry"]),
-                   Material.from_dict(d.get("material") or {}), d.get("poses"))
+                   Material.from_dict(d.get("material") or {}), d.get("poses"),
+                   None if deformation is None else Deformation.from_dict(deformation))
 
 
 @dataclass
 class TrackedFrame:
     """A named coordinate frame attached to a part: ``T_world_frame = T_world_part @ offset``.
 
-    Its id appears in ``object_ids``/``object_poses`` but never in ``segmentation``.
+    With an ``anchor`` (a point of the part's surface, see :class:`SurfaceAnchor`) the frame also follows
+    the part's deformation: its origin is the deformed surface point and it turns with the surface
+    normal there (at rest, ``offset`` is the frame, its origin the anchor point). Its id appears in
+    ``object_ids``/``object_poses`` but never in ``segmentation``.
     """
 
     id: int
     name: str
     attached_to: str  # name of the part it moves with
     offset: np.ndarray = field(default_factory=lambda: np.eye(4))
+    anchor: SurfaceAnchor | None = None
 
     def __post_init__(self):
         self.id = int(self.id)
@@ -148,12 +160,24 @@ class TrackedFrame:
             raise ValueError(f"tracked frame {self.name!r}: id {self.id} is not in 1..{MAX_ID}")
         self.offset = np.asarray(self.offset, dtype=np.float64).reshape(4, 4)
 
+    def local_pose(self, deformation: Deformation | None, t: float) -> np.ndarray:
+        """The frame in its part's frame at time ``t`` (seconds)."""
+        if self.anchor is None or deformation is None:
+            return self.offset.copy()
+        T = np.eye(4)
+        T[:3, :3] = rotation_between(self.anchor.normal(), self.anchor.normal(deformation, t)) @ self.offset[:3, :3]
+        T[:3, 3] = self.offset[:3, 3] + self.anchor.point(deformation, t) - self.anchor.point()
+        return T
+
     def to_dict(self) -> dict:
-        return {"id": self.id, "name": self.name, "attached_to": self.attached_to, "offset": self.offset.tolist()}
+        return {"id": self.id, "name": self.name, "attached_to": self.attached_to, "offset": self.offset.tolist(),
+                "anchor": None if self.anchor is None else self.anchor.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> TrackedFrame:
-        return cls(int(d["id"]), str(d["name"]), str(d["attached_to"]), d.get("offset", np.eye(4)))
+        anchor = d.get("anchor")
+        return cls(int(d["id"]), str(d["name"]), str(d["attached_to"]), d.get("offset", np.eye(4)),
+                   None if anchor is None else SurfaceAnchor.from_dict(anchor))
 
 
 @dataclass
@@ -220,6 +244,14 @@ class SceneDescription:
     def parts(self) -> list[tuple[SceneObject, Part]]:
         return [(o, p) for o in self.objects for p in o.parts]
 
+    def time(self, frame: int) -> float:
+        """Seconds at ``frame`` (the camera path's fps)."""
+        return float(frame) / float(self.path.fps)
+
+    @property
+    def deforming(self) -> bool:
+        return any(p.deformation is not None for _, p in self.parts())
+
     def camera_pose(self, frame: int, eye: str = "left") -> np.ndarray:
         """T_world_cam (OpenCV axes) of one eye at ``frame``, float64."""
         T = np.asarray(self.path.T_world_cam[int(frame)], dtype=np.float64)
@@ -234,8 +266,9 @@ class SceneDescription:
             poses.append(part.pose_at(frame))
         for obj in self.objects:
             for t in obj.tracked_frames:
+                part = obj.part(t.attached_to)
                 ids.append(t.id)
-                poses.append(obj.part(t.attached_to).pose_at(frame) @ t.offset)
+                poses.append(part.pose_at(frame) @ t.local_pose(part.deformation, self.time(frame)))
         return np.asarray(ids, np.uint16), np.asarray(poses, np.float64).reshape(-1, 4, 4)
 
     def classes(self) -> dict[str, int]:

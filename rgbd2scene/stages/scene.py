@@ -22,6 +22,8 @@ from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
+from rgbd2scene.scene.deformation import KINDS as DEFORMATIONS
+from rgbd2scene.scene.deformation import Deformation
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import (
     DEFAULT_STANDOFF,
@@ -58,6 +60,8 @@ class SceneOptions:
     material: str = option("wet_tissue", "tissue look", choices=MATERIALS)
     light: str = option("spot", "light at the tip", choices=("spot", "point"))
     light_power_w: float = option(0.05, "light power, watts", flag="--light-power")
+    deform: str = option("none", "tissue motion: breathing, heartbeat (periodic displacement along the surface "
+                         "normal) or none", choices=DEFORMATIONS)
 
     def rig(self) -> StereoRig:
         """The stereo rig; :class:`OptionError` naming the field when a value is implausible."""
@@ -97,7 +101,21 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         except ValueError as exc:
             raise UserError(f"path: {exc}") from None
     light = Light(kind=options.light, power_w=options.light_power_w)
-    return SceneDescription(rig, path, light, [tissue_object(options.material, folder.MESH, texture)])
+    tissue = tissue_object(options.material, folder.MESH, texture)
+    if options.deform != "none":
+        # centred on the surface the camera looks at in the middle of the path
+        centre = _view_target(rc if rc is not None else raycaster(vertices, triangles), path)
+        tissue.parts[0].deformation = Deformation.preset(options.deform, centre=tuple(centre))
+    return SceneDescription(rig, path, light, [tissue])
+
+
+def _view_target(rc, path: CameraPath) -> np.ndarray:
+    """The surface point on the optical axis in the path's middle frame (the mesh's median vertex if none)."""
+    T = path.T_world_cam[path.frames // 2]
+    depth = rc.centre_depth(T)
+    if np.isfinite(depth):
+        return T[:3, 3] + depth * T[:3, 2]
+    return np.median(rc.vertices, axis=0)
 
 
 def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions, python: str | None = None) -> dict:
