@@ -28,13 +28,14 @@ $(STAMP): pyproject.toml | system-deps
 	@touch $(STAMP)
 
 # ELAS for 'rgbd2scene evaluate' (PyPI pyelas, an sdist): it builds only without build isolation and with
-# numpy's headers on the include path (setuptools and wheel are installed above). A failure stops the install.
+# numpy's headers on the include path (setuptools and wheel are installed above). setuptools 65 passes CFLAGS to
+# its C++ sources, recent ones (84) CXXFLAGS: both are set. A failure stops the install.
 PYELAS := pyelas==1.0.1
 elas:
 	@$(BIN)/python -c "import elas" 2>/dev/null || { \
 	  echo "building ELAS ($(PYELAS))"; \
-	  CFLAGS="-I$$($(BIN)/python -c 'import numpy; print(numpy.get_include())')" \
-	    $(BIN)/pip install -q --no-build-isolation $(PYELAS) \
+	  NUMPY_INC="-I$$($(BIN)/python -c 'import numpy; print(numpy.get_include())')"; \
+	  CFLAGS="$$NUMPY_INC" CXXFLAGS="$$NUMPY_INC" $(BIN)/pip install -q --no-build-isolation $(PYELAS) \
 	  || { echo "error: building $(PYELAS) failed (needs a C++ compiler: apt-get install -y g++)"; exit 2; }; }
 
 test: install
