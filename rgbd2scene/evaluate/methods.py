@@ -109,7 +109,9 @@ class Sgbm:
 @dataclass
 class Elas:
     """ELAS with libelas' ROBOTICS preset (its default: no gap interpolation, so it stays honest about what it
-    could not match), searching ``range`` (at most 255 px, ELAS' limit). Invalid pixels (-10) become NaN."""
+    could not match), searching 0 to the top of ``range`` (at most 255 px, ELAS' limit). The search starts at 0
+    because with a band that excludes it libelas found no support points on test pairs and returned zeros.
+    Invalid pixels (-10) become NaN."""
 
     range: DisparityRange
     name: str = "elas"
@@ -122,7 +124,7 @@ class Elas:
                             "with --methods sgbm)") from None
         self.matcher = elas.Elas()
         self.matcher.set_preset(elas.PRESET_ROBOTICS)
-        self.matcher.disp_min = max(0, int(math.floor(self.range.low)))
+        self.matcher.disp_min = 0
         self.matcher.disp_max = min(ELAS_MAX_DISPARITY, int(math.ceil(self.range.high)))
 
     def __call__(self, index: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
