@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 from collections import defaultdict
 
 import numpy as np
@@ -181,8 +180,8 @@ def test_export_ros_bad_paths_exit_2(dataset, tmp_path, capsys):
     folder.mkdir()
     assert main(["export-ros", str(dataset.root), "-o", str(folder), "--ros", "1", "--quiet"]) == 2
     assert "folder" in capsys.readouterr().err
-    locked = tmp_path / "locked"
-    locked.mkdir(mode=0o500)
-    if not os.access(locked, os.W_OK):  # (root can write anywhere)
-        assert main(["export-ros", str(dataset.root), "-o", str(locked / "b.bag"), "--ros", "1", "--quiet"]) == 2
-        assert "cannot write" in capsys.readouterr().err
+    blocker = tmp_path / "blocker"  # a file where the bag's folder should be: unwritable even for root
+    blocker.write_text("x")
+    assert main(["export-ros", str(dataset.root), "-o", str(blocker / "b.bag"), "--ros", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {blocker / 'b.bag'}: cannot write") and err.count("\n") == 1
