@@ -6,16 +6,17 @@ STAMP := $(VENV)/.installed
 DEMO_OUT ?= demo_out
 SHELL := /bin/bash
 
-.PHONY: install system-deps test demo bench lint sample clean
+.PHONY: install system-deps elas test demo bench lint sample clean
 
 install: $(STAMP)
 
-# open3d needs libusb-1.0 at import time; Debian-based machines get it from apt.
+# open3d needs libusb-1.0 at import time; ELAS (pyelas) is C++ built at install time. Debian-based machines get
+# both from apt.
 system-deps:
-	@if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0; then \
-	  echo "installing system library libusb-1.0-0"; \
+	@if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0 || ! command -v g++ >/dev/null; then \
+	  echo "installing system packages libusb-1.0-0, g++"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 libegl1 libgl1 libgomp1 >/dev/null; \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 libegl1 libgl1 libgomp1 g++ >/dev/null; \
 	fi
 
 $(STAMP): pyproject.toml | system-deps
@@ -23,7 +24,19 @@ $(STAMP): pyproject.toml | system-deps
 	[ -x $(BIN)/python ] || $(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip setuptools wheel
 	$(BIN)/pip install -q -e '.[dev]'
+	$(MAKE) --no-print-directory elas
 	@touch $(STAMP)
+
+# ELAS for 'rgbd2scene evaluate' (PyPI pyelas, an sdist): it builds only without build isolation and with
+# numpy's headers on the include path (setuptools and wheel are installed above). setuptools 65 passes CFLAGS to
+# its C++ sources, recent ones (84) CXXFLAGS: both are set. A failure stops the install.
+PYELAS := pyelas==1.0.1
+elas:
+	@$(BIN)/python -c "import elas" 2>/dev/null || { \
+	  echo "building ELAS ($(PYELAS))"; \
+	  NUMPY_INC="-I$$($(BIN)/python -c 'import numpy; print(numpy.get_include())')"; \
+	  CFLAGS="$$NUMPY_INC" CXXFLAGS="$$NUMPY_INC" $(BIN)/pip install -q --no-build-isolation $(PYELAS) \
+	  || { echo "error: building $(PYELAS) failed (needs a C++ compiler: apt-get install -y g++)"; exit 2; }; }
 
 test: install
 	$(BIN)/python -m pytest -q tests

@@ -157,6 +157,59 @@ def cmd_preview(args) -> int:
     return 0
 
 
+def cmd_export_ros(args) -> int:
+    from rgbd2scene.dataset import Dataset
+    from rgbd2scene.export import RosOptions, export_ros
+
+    try:
+        options = RosOptions(version=args.ros, rate=args.rate, start=args.start, prefix=args.prefix,
+                             world=args.world_frame, scope=args.scope_frame)
+    except ValueError as exc:
+        raise UserError(f"export-ros: {exc} (--ros, --rate, --start)") from None
+    summary = export_ros(Dataset(args.dataset), args.output, options, progress=not args.quiet)
+    print(f"ROS {args.ros} bag: {'; '.join(summary.notes)} -> {summary.out}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    from rgbd2scene.dataset import Dataset
+    from rgbd2scene.export import FORMATS
+    from rgbd2scene.files.atomic import ensure_output_dir
+
+    dataset = Dataset(args.dataset)
+    out = ensure_output_dir(args.output)
+    summary = FORMATS[args.format](dataset, out, progress=not args.quiet)
+    print(f"{args.format}: {summary.frames} frames, {summary.files} files -> {out}")
+    for note in summary.notes:
+        print(f"note: {note}")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from rgbd2scene.evaluate import EvaluationOptions, evaluate
+    from rgbd2scene.evaluate.report import markdown_table
+
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip() and m.strip() != "none")
+    if not methods and not args.predictions:
+        raise UserError("evaluate: nothing to score (give --methods or --predictions)")
+    depth_range = None
+    if (args.min_depth is None) != (args.max_depth is None):
+        raise UserError("evaluate: give both --min-depth and --max-depth, or neither")
+    if args.min_depth is not None:
+        if not 0 < args.min_depth < args.max_depth:
+            raise UserError(f"evaluate: --min-depth {args.min_depth} and --max-depth {args.max_depth} must satisfy "
+                            f"0 < min < max (metres)")
+        depth_range = (args.min_depth, args.max_depth)
+    options = EvaluationOptions(methods=methods, predictions=tuple(args.predictions or ()), depth_range=depth_range,
+                                error_maps=not args.no_error_maps)
+    result = evaluate(args.dataset, args.output, options, progress=not args.quiet)
+    for split in dict.fromkeys(r.split for r in result.rows):
+        print(f"\nsplit {split}: every valid ground-truth pixel (invalid predictions filled)")
+        print(markdown_table([r for r in result.rows if r.split == split and r.scored == "all"]))
+    print(f"\nmetrics.csv, metrics.md, per_frame.csv{', error_maps/' if options.error_maps else ''} -> {result.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="rgbd2scene", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -197,6 +250,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=1024)
     p.add_argument("--height", type=int, default=768)
     p.set_defaults(func=cmd_preview)
+
+    from rgbd2scene.export.ros import DEFAULT_START_S
+
+    p = sub.add_parser("export-ros", help="ROS 1 .bag or ROS 2 (MCAP) bag of the dataset for replay at a chosen rate")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("-o", "--output", required=True, help="bag: a .bag file (--ros 1) or a bag folder (--ros 2)")
+    p.add_argument("--ros", type=int, default=2, choices=(1, 2),
+                   help="ROS version: 1 (.bag) or 2 (rosbag2, MCAP storage; default)")
+    p.add_argument("--rate", type=float, help="playback rate in Hz: stamps are start + i/rate (default the "
+                   "dataset's fps)")
+    p.add_argument("--start", type=float, default=DEFAULT_START_S, help="first stamp, seconds since the Unix "
+                   f"epoch (default {DEFAULT_START_S}: 2024-01-01, so bags are reproducible)")
+    p.add_argument("--prefix", default="/stereo", help="topic prefix (default /stereo: /stereo/left/image_rect_color, "
+                   "...)")
+    p.add_argument("--world-frame", default="world", help="fixed frame id (default world)")
+    p.add_argument("--scope-frame", default="endoscope", help="endoscope frame id; the eyes are "
+                   "<scope>_left_optical_frame and <scope>_right_optical_frame (default endoscope)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_export_ros)
+
+    from rgbd2scene.export import FORMATS
+
+    p = sub.add_parser("export", help="the dataset in a standard layout: KITTI, SceneFlow or VisionBlender npz")
+    p.add_argument("dataset", help="dataset folder")
+    p.add_argument("--format", required=True, choices=sorted(FORMATS), help="output layout")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("evaluate", help="stereo benchmark: SGBM, ELAS and external predictions scored against the "
+                       "ground truth")
+    p.add_argument("dataset", help="dataset folder, or a batch root with manifest.csv (one table per split)")
+    p.add_argument("-o", "--output", help="output folder (default DATASET/evaluation)")
+    p.add_argument("--methods", default="sgbm,elas", help="comma list of sgbm, elas, gt (the ground truth itself, "
+                   "a sanity row), or none (default sgbm,elas)")
+    p.add_argument("--predictions", action="append", metavar="[NAME=]DIR",
+                   help="score an external method: DIR holds NNNNNN.npy (float32 left disparity, pixels) or "
+                   "NNNNNN.pfm per frame (for a batch root, DIR/<sequence>/...); repeatable")
+    p.add_argument("--min-depth", type=float, help="nearest depth to search, metres (default: the ground truth's, "
+                   "less 10 %%)")
+    p.add_argument("--max-depth", type=float, help="farthest depth to search, metres (default: the ground truth's, "
+                   "plus 10 %%)")
+    p.add_argument("--no-error-maps", action="store_true", help="skip the best/worst frame pictures")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
     return parser
 
 

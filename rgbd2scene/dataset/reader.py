@@ -120,16 +120,22 @@ class Dataset:
         gt = bool(self.meta.get("render", {}).get("gt", True))
         return [i for i in range(self.frames) if not complete or frame_done(self.root, i, gt=gt)]
 
+    def rgb_file(self, eye: str, index: int) -> Path:
+        """Path of one eye's 8-bit sRGB PNG of frame ``index`` (exporters copy its bytes as they are)."""
+        return frame_paths(self.root, eye, index).rgb
+
     def rgb(self, eye: str, index: int) -> np.ndarray:
         """RGB uint8 (H, W, 3) of one eye and frame."""
-        path = frame_paths(self.root, eye, index).rgb
+        path = self.rgb_file(eye, index)
         image = read_image(path)
         if image is None:
             raise UserError(f"{path}: missing or unreadable image")
         return image
 
-    def gt(self, eye: str, index: int, keys: Iterable[str] | None = None) -> dict[str, np.ndarray]:
-        """Ground-truth arrays of one eye and frame (all keys, or only ``keys``; a missing key is an error)."""
+    def gt(self, eye: str, index: int, keys: Iterable[str] | None = None,
+           optional: Iterable[str] = ()) -> dict[str, np.ndarray]:
+        """Ground-truth arrays of one eye and frame: all keys, or only ``keys`` (a missing one is an error)
+        plus those of ``optional`` that the file holds (e.g. ``occluded_forward``)."""
         path = frame_paths(self.root, eye, index).gt
         if not path.is_file():
             raise UserError(f"{path}: ground-truth file missing")
@@ -139,6 +145,7 @@ class Dataset:
                 missing = [k for k in names if k not in z.files]
                 if missing:
                     raise UserError(f"{path}: no {', '.join(missing)} in this file (rendered with --gt?)")
+                names += [k for k in optional if k in z.files and k not in names]
                 return {k: z[k] for k in names}
         except UserError:
             raise

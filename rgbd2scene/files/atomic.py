@@ -6,6 +6,7 @@ import contextlib
 import json
 import os
 import secrets
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -38,6 +39,41 @@ def atomic_path(path: str | Path, suffix: str | None = None, tmp_dir: str | Path
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def _umask() -> int:
+    """The process umask, read without changing it (``/proc``), else by setting and restoring it."""
+    with contextlib.suppress(OSError, ValueError), open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_place(path: str | Path) -> Iterator[Path]:
+    """Yield ``path``'s name inside a fresh hidden folder next to it; on success, what was written there (a file
+    or a whole folder, e.g. a ROS 2 bag) replaces ``path``. On error, or if nothing was written, it is removed.
+
+    Writers that insist on creating their output themselves (and name inner files after it) write the real
+    name, so nothing inside keeps a temporary name; an existing folder at ``path`` is swapped out, then deleted.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        tmp = work / path.name
+        yield tmp
+        if tmp.is_dir() and path.is_dir():
+            os.replace(path, work / ".old")  # a folder cannot be renamed onto a non-empty folder
+        if tmp.exists():
+            if tmp.is_dir():
+                os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp made it owner-only
+            os.replace(tmp, path)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
 
 
 def ensure_output_dir(out_dir: str | Path) -> Path:
