@@ -47,7 +47,8 @@ import numpy as np
 
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.dataset import layout as ds
-from rgbd2scene.groundtruth.passes import gt_from_passes, passes_needed
+from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
+from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
@@ -169,6 +170,9 @@ class Renderer:
             layer.use = False
         self.images_at_start = {img.name for img in bpy.data.images}
         self.work = scratch
+        # anything but the camera moves: occlusion maps and deformed vertices from the model's own geometry
+        moving = any(part.moving for _, part in description.parts())
+        self.geometry = SceneGeometry(description, scene_dir) if moving and self.maps else None
 
     # -- configurations --
     # Only changed values are assigned: any assignment tags Blender data as updated, and with persistent
@@ -233,7 +237,8 @@ class Renderer:
         return {"index": index, "files": files, "poses": poses, "object_ids": ids, "object_poses": obj_poses}
 
     def write_gt(self, job: dict) -> None:
-        """Passes -> ground truth -> npz of both eyes; removes the EXRs. No ``bpy``: runs in a thread."""
+        """Passes -> ground truth -> npz of both eyes (plus occlusion maps and the frame's deformed vertices
+        when anything but the camera moves); removes the EXRs. No ``bpy``: runs in a thread."""
         index = job["index"]
         try:
             for eye, path in job["files"].items():
@@ -243,7 +248,17 @@ class Renderer:
                                     first=index == 0, last=index == self.frames - 1,
                                     object_ids=job["object_ids"], object_poses=job["object_poses"],
                                     maps=self.maps)
+                if self.geometry is not None:
+                    intr = self.rig.intrinsics
+                    surface = np.isfinite(gt.get("depth", depth_from_pass(passes["depth"])))
+                    for key, flags in occlusion_maps(self.geometry, index, self.frames, eye, self.K, intr.width,
+                                                     intr.height).items():
+                        gt[key] = flags & surface
                 ds.write_gt(ds.frame_paths(self.out_dir, eye, index).gt, gt, scratch=self.work)
+            if self.geometry is not None and self.geometry.deformed():
+                vertices = {f"vertices_{pid}": self.geometry.part_vertices(i, index).astype(np.float32)
+                            for pid, i in self.geometry.deformed()}
+                ds.write_gt(ds.geometry_path(self.out_dir, index), vertices, scratch=self.work)
         finally:
             for path in job["files"].values():
                 path.unlink(missing_ok=True)
@@ -350,7 +365,7 @@ def render_task(bpy, task: Task, say) -> None:
         say(ready_line(time.perf_counter() - t0, renderer.device))
         indices = range(max(task.start, 0), min(task.end or frames, frames))
         need_rgb = [i for i in indices if not ds.rgb_done(out_dir, i)]
-        need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i)]
+        need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i, description.deforming)]
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
         # Two phases: every RGB render of the chunk, then every data render. Switching between the two

@@ -8,6 +8,7 @@ from rgbd2scene.dataset.layout import (
     frame_done,
     frame_name,
     frame_paths,
+    geometry_path,
     gt_done,
     read_dataset_json,
     read_frame,
@@ -20,6 +21,6 @@ from rgbd2scene.dataset.layout import (
 )
 from rgbd2scene.dataset.reader import Dataset, ObjectEntry
 
-__all__ = ["DATASET_JSON", "EYES", "WORK_DIR", "Dataset", "FramePaths", "ObjectEntry", "frame_done", "frame_name",
-           "frame_paths", "gt_done", "read_dataset_json", "read_frame", "scratch_dir", "sweep_dead_runs", "rgb_done",
-           "write_dataset_json", "write_frame", "write_gt"]
+__all__ = ["DATASET_JSON", "Dataset", "EYES", "FramePaths", "ObjectEntry", "WORK_DIR", "frame_done", "frame_name",
+           "frame_paths", "geometry_path", "gt_done", "read_dataset_json", "read_frame", "rgb_done", "scratch_dir",
+           "sweep_dead_runs", "write_dataset_json", "write_frame", "write_gt"]

@@ -36,6 +36,8 @@ EYES = ("left", "right")
 DATASET_JSON = "dataset.json"
 #: Scratch folder of a running render (Blender's own outputs before they are renamed into place).
 WORK_DIR = ".work"
+#: Deformed vertex positions per frame (CONVENTIONS §4).
+GEOMETRY_DIR = "geometry"
 #: Keys dataset.json must have (CONVENTIONS §4 plus this project's render record).
 REQUIRED_KEYS = ("width", "height", "frames", "fps", "baseline", "K", "objects", "scene", "software", "seed",
                  "conventions_version", "render")
@@ -75,13 +77,20 @@ def rgb_done(root: str | Path, index: int) -> bool:
     return all(frame_paths(root, eye, index).rgb.is_file() for eye in EYES)
 
 
-def gt_done(root: str | Path, index: int) -> bool:
-    return all(frame_paths(root, eye, index).gt.is_file() for eye in EYES)
+def geometry_path(root: str | Path, index: int) -> Path:
+    """``DATASET/geometry/NNNNNN.npz``: the deformed vertices of frame ``index`` (deforming scenes only)."""
+    return Path(root) / GEOMETRY_DIR / f"{frame_name(index)}.npz"
 
 
-def frame_done(root: str | Path, index: int, gt: bool = True) -> bool:
-    """Both eyes' RGB PNG present and, with ``gt``, both eyes' npz too."""
-    return rgb_done(root, index) and (not gt or gt_done(root, index))
+def gt_done(root: str | Path, index: int, geometry: bool = False) -> bool:
+    """Both eyes' npz present and, with ``geometry`` (a deforming scene), the frame's geometry file."""
+    return (all(frame_paths(root, eye, index).gt.is_file() for eye in EYES)
+            and (not geometry or geometry_path(root, index).is_file()))
+
+
+def frame_done(root: str | Path, index: int, gt: bool = True, geometry: bool = False) -> bool:
+    """Both eyes' RGB PNG present and, with ``gt``, the ground truth too (see :func:`gt_done`)."""
+    return rgb_done(root, index) and (not gt or gt_done(root, index, geometry))
 
 
 def write_rgb(path: str | Path, rgb_uint8: np.ndarray) -> None:
@@ -212,6 +221,7 @@ def sweep_dead_runs(root: str | Path) -> int:
     root = Path(root)
     count = 0
     strays = [p for eye in EYES for kind in ("rgb", "gt") for p in (root / eye / kind).glob(".*")]
+    strays += list((root / GEOMETRY_DIR).glob(".*"))
     strays += list(root.glob(f".{Path(DATASET_JSON).stem}.*"))
     for p in strays:
         with contextlib.suppress(FileNotFoundError):

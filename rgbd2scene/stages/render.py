@@ -257,7 +257,8 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     ds.sweep_dead_runs(out)
 
     with_gt = bool(options.maps)
-    todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=with_gt)]
+    geometry = with_gt and description.deforming
+    todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=with_gt, geometry=geometry)]
     skipped = (e - s) - len(todo)
     chunks = [todo[i:i + options.chunk] for i in range(0, len(todo), options.chunk)]
     stats: dict[int, dict] = {}
@@ -267,7 +268,7 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
         for group in chunks:
             task = render_task(scene_dir, out, description, options, n, group[0], group[-1] + 1)
             _run_chunk(task, set(group), stats, starts, bar, python)
-            missing = [i for i in group if not ds.frame_done(out, i, gt=with_gt)]
+            missing = [i for i in group if not ds.frame_done(out, i, gt=with_gt, geometry=geometry)]
             if missing:
                 raise RenderError(f"render worker finished but frames {missing} of {out} are incomplete")
     finally:

@@ -76,6 +76,8 @@ def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
     no_oracle = ""
     if oracle is None:
         oracle, no_oracle = scene_oracle(dataset, mesh_path, shading=normals, ids=mesh_ids, moving=moving)
+    if hasattr(oracle, "moved_points"):  # the oracle follows moving and deforming surfaces itself
+        moving = frozenset()
     run = VerifyRun(dataset, width, height, baseline, K, tolerances or Tolerances(), oracle, moving, poses)
     active = [check for check in checks if oracle is not None or not check.needs_oracle]
     for check in checks:

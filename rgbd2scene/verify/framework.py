@@ -64,6 +64,7 @@ class Tolerances:
     lr_inconsistent: float = 0.002  # fraction of compared pixels where the other eye sees further
     lr_median_px: float = 0.005
     occlusion_rel: float = 0.01  # relative depth difference that separates visible from hidden
+    id_mismatch: float = 0.0  # fraction of pixels off id edges whose instance id differs from the scene's
     occlusion_disagree: float = 0.01  # fraction of surface pixels where occluded_* contradicts the geometry
     coverage_warn: float = 0.95
     normal_unit: float = 1e-3
@@ -327,6 +328,15 @@ class EyeFrame:
         """The oracle's ray cast of this eye at this frame (only for checks that need the oracle)."""
         height, width = self.run.shape
         return self.run.oracle.cast(self.index, self.K, self.T_world_cam, width, height)
+
+    def moved_points(self, other: int) -> np.ndarray | None:
+        """World positions at frame ``other`` of the surface points under each pixel, when the oracle follows
+        moving surfaces (:meth:`~rgbd2scene.verify.oracle.ModelOracle.moved_points`); else None."""
+        follow = getattr(self.run.oracle, "moved_points", None)
+        if follow is None:
+            return None
+        height, width = self.run.shape
+        return follow(self.index, other, self.K, self.T_world_cam, width, height)
 
     # -- other frames of this eye --
     def pose(self, index: int) -> np.ndarray | None:

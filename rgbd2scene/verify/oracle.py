@@ -1,11 +1,13 @@
 """The scene oracle: what eye E really sees at frame f, by ray casting the scene model (independent of Blender).
 
-The mesh checks (``depth``, ``normals``) never open meshes: they ask the run's oracle for a :class:`RayCast`
-at the eye's K, pose, image size and frame, and compare only the pixels the oracle models
-(:meth:`SceneOracle.covers`). Today's scenes are one static mesh (:class:`StaticMeshOracle`, the tissue at
-rest); a scene with moving instruments and deforming tissue plugs in as another :class:`SceneOracle` that
-places each part at its pose of frame f (``object_poses``, ``DATASET/geometry``) and, knowing which part
-each triangle belongs to, returns instance ids and covers every pixel.
+The mesh checks (``depth``, ``normals``, ``segmentation``) never open meshes: they ask the run's oracle for
+a :class:`RayCast` at the eye's K, pose, image size and frame, and compare only the pixels the oracle models
+(:meth:`SceneOracle.covers`). When the dataset's scene folder holds its scene model (``scene.json``), the
+oracle is :class:`ModelOracle`: every part at its pose of frame f, deforming tissue deformed
+(:class:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry`), instance ids per triangle, every pixel
+covered, and surface points followed into other frames (:meth:`ModelOracle.moved_points`) for the flow and
+occlusion checks of moving surfaces. Otherwise (``--mesh``, or no scene folder) it is one static mesh
+(:class:`StaticMeshOracle`), and moving objects are left out.
 """
 
 from __future__ import annotations
@@ -97,6 +99,68 @@ class StaticMeshOracle:
         return covered
 
 
+class ModelOracle:
+    """The scene model at every frame: objects at their poses, deforming surfaces deformed.
+
+    ``moved_points(frame, other, ...)`` gives, per pixel, the world position at frame ``other`` of the surface
+    point the pixel sees at ``frame`` (the same triangle and barycentric weights): the independent reference
+    for the flow and occlusion of moving and deforming surfaces.
+    """
+
+    def __init__(self, geometry, source: str, shading: str = "smooth"):
+        if shading not in SHADINGS:
+            raise ValueError(f"shading must be one of {SHADINGS}, not {shading!r}")
+        self.geometry, self.source, self.shading = geometry, source, shading
+        self._last: tuple | None = None
+
+    def _hit(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int) -> dict:
+        key = (int(frame), width, height, np.asarray(K, np.float64).tobytes(), np.asarray(T_world_cam).tobytes())
+        if self._last is None or self._last[0] != key:
+            self._last = (key, self.geometry.cast(frame, K, T_world_cam, width, height, normals=self.shading))
+        return self._last[1]
+
+    def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int) -> RayCast:
+        hit = self._hit(frame, K, T_world_cam, width, height)
+        return RayCast(hit["depth"], hit["normals_cam"], hit.get("face_normals_cam"), hit["instance_ids"])
+
+    def covers(self, frame: int, segmentation: np.ndarray) -> np.ndarray:
+        return np.ones(segmentation.shape, bool)
+
+    def moved_points(self, frame: int, other: int, K: np.ndarray, T_world_cam: np.ndarray, width: int,
+                     height: int) -> np.ndarray:
+        """(H, W, 3) world positions at ``other`` of the points this camera sees at ``frame`` (NaN: none)."""
+        hit = self._hit(frame, K, T_world_cam, width, height)
+        return self.geometry.moved_points(hit["triangle_ids"], hit["uvs"], other)
+
+
+def model_oracle(dataset: Dataset, shading: str = "smooth") -> ModelOracle | None:
+    """The oracle of the scene model in the dataset's scene folder (None when there is no scene.json)."""
+    import json
+
+    from rgbd2scene.groundtruth.scene_geometry import SceneGeometry
+    from rgbd2scene.scene.folder import SCENE_JSON
+    from rgbd2scene.scene.model import SceneDescription
+
+    scene_dir = dataset.scene_dir
+    if scene_dir is None or not (scene_dir / SCENE_JSON).is_file():
+        return None
+    try:
+        record = json.loads((scene_dir / SCENE_JSON).read_text())
+        description = SceneDescription.from_dict(record["scene"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if dataset.meta.get("scene", {}).get("scene_json_sha1") not in (None, _sha1(scene_dir / SCENE_JSON)):
+        raise UserError(f"{scene_dir / SCENE_JSON}: not the scene this dataset was rendered from (its hash "
+                        "differs from dataset.json's); pass --mesh to check against a mesh")
+    return ModelOracle(SceneGeometry(description, scene_dir), f"scene model {scene_dir / SCENE_JSON}", shading)
+
+
+def _sha1(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha1(path.read_bytes()).hexdigest()
+
+
 def scene_mesh_file(dataset: Dataset, mesh_path: str | Path | None = None) -> tuple[Path | None, str]:
     """The mesh to ray cast and, when there is none, why.
 
@@ -140,10 +204,15 @@ def scene_oracle(dataset: Dataset, mesh_path: str | Path | None = None, *, shadi
                  moving=frozenset()) -> tuple[SceneOracle | None, str]:
     """The oracle of a dataset's scene, or None and the reason there is none.
 
-    The scene is today one static mesh (:func:`scene_mesh_file`) whose surface has the segmentation ids
-    ``ids``: by default the objects of class "tissue" in the dataset's object table, else every id.
-    Objects in ``moving`` are never covered.
+    Without ``mesh_path``, the scene model of the dataset's scene folder (:func:`model_oracle`) when it is
+    there. Otherwise one static mesh (:func:`scene_mesh_file`) whose surface has the segmentation ids
+    ``ids``: by default the objects of class "tissue" in the dataset's object table, else every id; objects
+    in ``moving`` are never covered.
     """
+    if mesh_path is None:
+        oracle = model_oracle(dataset, shading)
+        if oracle is not None:
+            return oracle, ""
     path, reason = scene_mesh_file(dataset, mesh_path)
     if path is None:
         return None, reason

@@ -13,6 +13,7 @@ from rgbd2scene.verify.checks.flow import FlowCheck
 from rgbd2scene.verify.checks.normals import NormalsCheck
 from rgbd2scene.verify.checks.occlusion import OcclusionCheck
 from rgbd2scene.verify.checks.schema import SchemaCheck
+from rgbd2scene.verify.checks.segmentation import SegmentationCheck
 from rgbd2scene.verify.checks.stereo import StereoCheck
 
 CHECKS = (
@@ -20,6 +21,7 @@ CHECKS = (
     CoverageCheck(),
     DepthCheck(),
     NormalsCheck(),
+    SegmentationCheck(),
     DisparityCheck(),
     FlowCheck(),
     StereoCheck(),

@@ -1,8 +1,10 @@
-"""``flow_fwd`` / ``flow_bwd``: optical flow against reprojecting the depth into the next / previous frame.
+"""``flow_fwd`` / ``flow_bwd``: optical flow against moving each surface point into the next / previous frame.
 
-The reference moves the static scene with the camera only (K and the two poses of this eye,
-``conventions.flow_between_cameras``), so pixels of moving objects are left out. On the last (forward) and
-first (backward) frame the flow must be NaN everywhere.
+With the scene model as oracle, the reference follows the surface point under each pixel (moving objects
+and deforming tissue too: :meth:`~rgbd2scene.verify.oracle.ModelOracle.moved_points`) and projects it with
+the other frame's pose. Otherwise it moves the static scene with the camera only (K and the two poses of
+this eye, ``conventions.flow_between_cameras``), and pixels of moving objects are left out. On the last
+(forward) and first (backward) frame the flow must be NaN everywhere.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd2scene.conventions import flow_between_cameras
+from rgbd2scene.conventions import flow_between_cameras, invert_pose, pixel_grid, project, transform_points
 from rgbd2scene.dataset.layout import EYES
 from rgbd2scene.verify.error_maps import ErrorPanel, pixel_states, ratio, worst
 from rgbd2scene.verify.framework import Check, EyeFrame, VerifyRun, median_p99
@@ -69,8 +71,14 @@ def _compare(frame: EyeFrame, d: Direction, flow: np.ndarray, other: int,
     """Endpoint errors against the reprojection into frame ``other``; the error map and its score when kept."""
     tol = frame.run.tol
     surface = frame.surface
-    ref = flow_between_cameras(np.where(surface, frame.depth, np.nan), frame.K, frame.T_world_cam,
-                               T_other).astype(np.float64)
+    moved = frame.moved_points(other)
+    if moved is not None:
+        u, v = project(transform_points(invert_pose(T_other), moved), frame.K)
+        gu, gv = pixel_grid(*frame.run.shape)
+        ref = np.stack([u - gu, v - gv], axis=-1)
+    else:
+        ref = flow_between_cameras(np.where(surface, frame.depth, np.nan), frame.K, frame.T_world_cam,
+                                   T_other).astype(np.float64)
     ref_ok = np.all(np.isfinite(ref), axis=-1) & surface & frame.static
     have = np.all(np.isfinite(flow), axis=-1)
     both = ref_ok & have

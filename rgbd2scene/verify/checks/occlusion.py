@@ -1,9 +1,10 @@
 """``occlusion``: the ``occluded_forward`` / ``occluded_backward`` flags agree with the geometry.
 
-Each surface point is moved into the next / previous frame of the same eye (K and the two poses) and looked
-up in that frame's depth: where the depth there matches, the point is clearly visible; where every
-neighbouring depth there is clearly nearer, or the point leaves the image, it is clearly hidden. A flag that
-contradicts a clear case counts (static surface only; the ambiguous cases in between are not judged).
+Each surface point is moved into the next / previous frame of the same eye (with the scene model as oracle:
+followed with its moving or deforming surface; otherwise with the camera only, static surface only) and
+looked up in that frame's rendered depth: where the depth there matches, the point is clearly visible; where
+every neighbouring depth there is clearly nearer, or the point leaves the image, it is clearly hidden. A
+flag that contradicts a clear case counts (the ambiguous cases in between are not judged).
 """
 
 from __future__ import annotations
@@ -29,8 +30,12 @@ class OcclusionCheck(Check):
             T_other, depth_other = frame.pose(other), frame.depth_at(other)
             if T_other is None or depth_other is None:
                 continue
-            visible, hidden = occlusion_reference(np.where(frame.surface, frame.depth, np.nan), frame.K,
-                                                  frame.T_world_cam, T_other, depth_other, frame.run.tol.occlusion_rel)
+            moved = frame.moved_points(other)
+            if moved is None:  # the static scene moved with the camera
+                moved = transform_points(frame.T_world_cam, backproject(np.where(frame.surface, frame.depth, np.nan),
+                                                                        frame.K))
+            moved = np.where(frame.surface[..., None], moved, np.nan)
+            visible, hidden = occlusion_reference(moved, frame.K, T_other, depth_other, frame.run.tol.occlusion_rel)
             flags = flags.astype(bool)
             wrong = ((flags & visible) | (~flags & hidden)) & frame.static
             if frame.surface.any():
@@ -38,14 +43,15 @@ class OcclusionCheck(Check):
                           frame.run.tol.occlusion_disagree)
 
 
-def occlusion_reference(depth: np.ndarray, K: np.ndarray, T_a: np.ndarray, T_b: np.ndarray, depth_b: np.ndarray,
+def occlusion_reference(points: np.ndarray, K: np.ndarray, T_b: np.ndarray, depth_b: np.ndarray,
                         rel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of camera a whose surface point is clearly visible / clearly hidden (or outside) in camera b.
+    """Pixels whose surface point (at its position in frame b) is clearly visible / clearly hidden (or
+    outside) in camera b.
 
     Parameters
     ----------
-    depth : (H, W) planar depth of camera a, NaN where there is no surface.
-    K : (3, 3) intrinsics of both cameras; T_a, T_b : (4, 4) their T_world_cam.
+    points : (H, W, 3) world positions in frame b of the points under each pixel, NaN where no surface.
+    K : (3, 3) intrinsics; T_b : (4, 4) camera b's T_world_cam.
     depth_b : (H, W) planar depth of camera b.
     rel : relative depth difference that separates visible from hidden.
 
@@ -53,9 +59,9 @@ def occlusion_reference(depth: np.ndarray, K: np.ndarray, T_a: np.ndarray, T_b: 
     -------
     visible, hidden : bool (H, W) each.
     """
-    h, w = depth.shape
-    surface = np.isfinite(depth)
-    pts = transform_points(invert_pose(T_b) @ T_a, backproject(depth, K))
+    h, w = points.shape[:2]
+    surface = np.all(np.isfinite(points), axis=-1)
+    pts = transform_points(invert_pose(T_b), points)
     z = pts[..., 2]
     u, v = project(pts, K)
     with np.errstate(invalid="ignore"):

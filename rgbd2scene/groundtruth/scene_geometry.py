@@ -1,0 +1,153 @@
+"""The scene model's surfaces at any frame, in numpy: the independent geometry behind occlusion maps,
+``DATASET/geometry/`` and ``verify``'s ray casting of moving and deforming scenes.
+
+Every part's rest mesh is read from the scene folder (as the PLY stores it, the same float32 vertices Blender
+builds from), deformed by its :class:`~rgbd2scene.scene.deformation.Deformation` (the one formula, on the
+same area-weighted rest normals) and placed by its pose of the frame. Ray casts (Open3D, float32) report for
+every pixel the part's instance id, the triangle and the barycentric coordinates of the hit, so a surface
+point can be followed into another frame exactly: the same triangle, the same barycentric weights, that
+frame's vertices.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rgbd2scene.conventions import invert_pose, project, transform_points
+from rgbd2scene.files.meshio import read_ply
+from rgbd2scene.groundtruth.raycast import Raycaster
+from rgbd2scene.scene.deformation import rest_normals
+from rgbd2scene.scene.model import Part, SceneDescription
+
+#: A moved point counts as hidden when a surface lies in front of it by more than this fraction of its
+#: distance (Open3D casts in float32: ~1e-6 relative; 1e-4 is 5 um at 5 cm).
+OCCLUSION_REL = 1e-4
+
+
+@dataclass
+class _PartMesh:
+    part: Part
+    vertices: np.ndarray  # rest, part frame, float64 of the stored float32
+    triangles: np.ndarray
+    normals: np.ndarray | None  # rest normals, for deforming parts
+
+
+class SceneGeometry:
+    """The surfaces of ``description`` (files in ``scene_dir``) at any frame.
+
+    Parameters
+    ----------
+    description : the scene model.
+    scene_dir : the scene folder holding each part's geometry file.
+    cache : how many frames' ray-casting scenes to keep (consecutive frames reuse them).
+    """
+
+    def __init__(self, description: SceneDescription, scene_dir: str | Path, cache: int = 3):
+        self.description = description
+        self.meshes: list[_PartMesh] = []
+        for _, part in description.parts():
+            mesh = read_ply(Path(scene_dir) / part.geometry)
+            vertices = mesh.vertices.astype(np.float32).astype(np.float64)
+            triangles = np.asarray(mesh.triangles, dtype=np.int64)
+            normals = rest_normals(vertices, triangles) if part.deformation is not None else None
+            self.meshes.append(_PartMesh(part, vertices, triangles, normals))
+        offsets = np.cumsum([0] + [len(m.vertices) for m in self.meshes])
+        self.triangles = np.concatenate([m.triangles + o for m, o in zip(self.meshes, offsets[:-1], strict=True)])
+        self.triangle_ids = np.concatenate([np.full(len(m.triangles), m.part.id, np.uint16) for m in self.meshes])
+        self.static = not any(m.part.moving for m in self.meshes)
+        self._cache: OrderedDict[int, Raycaster] = OrderedDict()
+        self._cache_size = max(1, int(cache))
+
+    def part_vertices(self, index: int, frame: int) -> np.ndarray:
+        """World-frame vertices (N, 3) float64 of the ``index``-th part at ``frame``."""
+        m = self.meshes[index]
+        local = m.vertices
+        if m.part.deformation is not None:
+            local = m.part.deformation.displace(local, m.normals, self.description.time(frame))
+        return transform_points(m.part.pose_at(frame), local)
+
+    def vertices(self, frame: int) -> np.ndarray:
+        """World-frame vertices of every part at ``frame``, concatenated in model order (N, 3) float64."""
+        return np.concatenate([self.part_vertices(i, frame) for i in range(len(self.meshes))])
+
+    def deformed(self) -> list[tuple[int, int]]:
+        """(instance id, part index) of the deforming parts (their vertices go to ``DATASET/geometry``)."""
+        return [(m.part.id, i) for i, m in enumerate(self.meshes) if m.part.deformation is not None]
+
+    def raycaster(self, frame: int) -> Raycaster:
+        key = 0 if self.static else int(frame)
+        rc = self._cache.get(key)
+        if rc is None:
+            rc = Raycaster(self.vertices(frame), self.triangles)
+            self._cache[key] = rc
+            while len(self._cache) > self._cache_size:
+                self._cache.popitem(last=False)
+        self._cache.move_to_end(key)
+        return rc
+
+    def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int,
+             normals: str = "smooth") -> dict[str, np.ndarray]:
+        """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``) plus ``instance_ids``
+        (H, W) uint16 (0 on a miss)."""
+        hit = self.raycaster(frame).cast(K, width, height, T_world_cam, normals=normals, with_uvs=True)
+        tri = hit["triangle_ids"]
+        hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids[np.maximum(tri, 0)], 0).astype(np.uint16)
+        return hit
+
+    def moved_points(self, triangle_ids: np.ndarray, uvs: np.ndarray, frame: int) -> np.ndarray:
+        """World positions at ``frame`` of surface points given by triangle and barycentric (u, v) (as
+        :meth:`cast` reports them at any frame); NaN where ``triangle_ids`` < 0."""
+        tri = np.asarray(triangle_ids)
+        out = np.full(tri.shape + (3,), np.nan)
+        hit = tri >= 0
+        if hit.any():
+            corners = self.vertices(frame)[self.triangles[tri[hit]]]  # (n, 3 corners, 3)
+            u, v = uvs[hit][:, 0:1], uvs[hit][:, 1:2]
+            out[hit] = (1.0 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
+        return out
+
+    def hidden(self, points: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int,
+               frame: int) -> np.ndarray:
+        """Bool (...): each world point (NaN: False) is hidden from the camera at ``frame``: it projects
+        outside the image (or behind the camera), or another surface of that frame lies in front of it."""
+        p = np.asarray(points, dtype=np.float64)
+        valid = np.all(np.isfinite(p), axis=-1)
+        out = np.zeros(p.shape[:-1], bool)
+        if not valid.any():
+            return out
+        cam = transform_points(invert_pose(T_world_cam), p[valid])
+        u, v = project(cam, K)
+        with np.errstate(invalid="ignore"):
+            inside = (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
+        centre = np.asarray(T_world_cam, dtype=np.float64)[:3, 3]
+        t = self.raycaster(frame).cast_rays(centre, p[valid] - centre)["t"]  # 1 at the point itself
+        with np.errstate(invalid="ignore"):
+            blocked = t < 1.0 - OCCLUSION_REL
+        out[valid] = ~inside | blocked
+        return out
+
+
+def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, K: np.ndarray, width: int,
+                   height: int) -> dict[str, np.ndarray]:
+    """``occluded_forward`` / ``occluded_backward`` (H, W) bool of one eye at ``frame`` (CONVENTIONS §3).
+
+    The surface point under each pixel (ray cast of the model) is followed to the next / previous frame
+    (same triangle and barycentric weights, that frame's vertices) and looked at from that frame's camera:
+    occluded when it leaves the image or another surface hides it. Pixels without surface are False; on the
+    last (first) frame, where there is no next (previous) frame, every surface pixel is True.
+    """
+    description = geometry.description
+    hit = geometry.cast(frame, K, description.camera_pose(frame, eye), width, height, normals="none")
+    surface = hit["triangle_ids"] >= 0
+    out = {}
+    for key, other in (("occluded_forward", frame + 1), ("occluded_backward", frame - 1)):
+        if not 0 <= other < frames:
+            out[key] = surface.copy()
+            continue
+        moved = geometry.moved_points(hit["triangle_ids"], hit["uvs"], other)
+        out[key] = geometry.hidden(moved, K, description.camera_pose(other, eye), width, height, other) & surface
+    return out
