@@ -41,9 +41,13 @@ def test_npy_and_exr_metres(tmp_path):
     np.save(tmp_path / "d.npy", z)
     d, fmt, scale = read_depth(tmp_path / "d.npy")
     assert fmt == "npy" and scale is None and np.isnan(d[3, 3]) and np.isclose(d[0, 0], 0.05)
-    assert cv2.imwrite(str(tmp_path / "d.exr"), z)
-    d2, fmt2, _ = read_depth(tmp_path / "d.exr")
-    assert fmt2 == "exr" and np.allclose(d, d2, equal_nan=True)
+    import OpenEXR
+
+    for channels in ({"Y": z}, {"Z": z}, {"R": z, "G": z, "B": z}):  # grey (as OpenCV writes it), depth, RGB
+        header = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION}
+        OpenEXR.File(header, channels).write(str(tmp_path / "d.exr"))
+        d2, fmt2, _ = read_depth(tmp_path / "d.exr")
+        assert fmt2 == "exr" and np.allclose(d, d2, equal_nan=True)
 
 
 @pytest.mark.parametrize(

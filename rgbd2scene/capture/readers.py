@@ -7,17 +7,14 @@ Everything is returned as float32 metres with NaN for invalid pixels.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
-
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
-import cv2  # noqa: E402  (the EXR switch must be set before cv2 is imported)
 
 DEPTH_FORMATS = ("auto", "png", "sun", "nyu", "exr", "npy")
 RGB_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".tif", ".tiff")
@@ -154,7 +151,7 @@ def read_depth(
             raise UserError(f"{path}: .npy depth must be float metres, got {depth.dtype}")
         return _floats_to_metres(path, _squeeze_depth(path, depth)), "npy", None
     if fmt == "exr":
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
+        img = _read_exr(path)
         if img is None:
             raise UserError(f"{path}: not a readable EXR depth image")
         return _floats_to_metres(path, _squeeze_depth(path, img)), "exr", None
@@ -182,6 +179,25 @@ def read_depth(
     depth = raw.astype(np.float32) / np.float32(scale)
     depth[raw == 0] = np.nan
     return depth, fmt, scale
+
+
+def _read_exr(path: Path) -> np.ndarray | None:
+    """An EXR's depth as float32 (H, W) — its ``Z``/``depth``/``Y`` channel — or its colour channels stacked
+    (H, W, C) for :func:`_squeeze_depth` to judge; None when the file is not a readable EXR. Read with the
+    OpenEXR package (OpenCV's EXR reader needs a process-wide switch)."""
+    import OpenEXR
+
+    try:
+        channels = {name: ch.pixels for name, ch in OpenEXR.File(str(path), separate_channels=True).channels().items()}
+    except Exception:  # noqa: BLE001 - any unreadable file is a user error
+        return None
+    for name in ("Z", "depth", "Y"):
+        if name in channels:
+            return np.asarray(channels[name], dtype=np.float32)
+    colour = [channels[c] for c in ("R", "G", "B") if c in channels] or list(channels.values())
+    if not colour:
+        return None
+    return np.stack([np.asarray(c, dtype=np.float32) for c in colour], axis=-1)
 
 
 def _squeeze_depth(path: Path, arr: np.ndarray) -> np.ndarray:

@@ -12,7 +12,6 @@ structured array per element; OBJ text is built as a byte matrix of digits and c
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +20,6 @@ from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import write_image
 from rgbd2scene.reconstruct.mesh import Mesh
-
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
