@@ -8,8 +8,9 @@ import cv2
 import numpy as np
 
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.files.images import write_image
-from rgbd2scene.pictures.overview import BACKGROUND, colorize_depth, depth_range, fit_cell, label_panel
+from rgbd2scene.pictures.overview import BACKGROUND, colorize_depth, depth_range, fit_cell, label_panel, put_text
 
 CELL_W = 384
 
@@ -37,12 +38,46 @@ def colorize_normals(normals: np.ndarray) -> np.ndarray:
     return rgb
 
 
+def id_colour(i: int) -> np.ndarray:
+    """A fixed, distinct RGB colour per id (0: black), the same in every picture of every dataset."""
+    if i == 0:
+        return np.zeros(3, np.uint8)
+    hue = (i * 0.618033988749895) % 1.0  # golden-ratio steps around the hue circle
+    hsv = np.array([[[int(hue * 180), 200 if i % 2 else 255, 255 if i % 3 else 190]]], np.uint8)
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)[0, 0]
+
+
 def colorize_ids(ids: np.ndarray) -> np.ndarray:
-    """Instance ids as distinct colours (0 = nothing, black)."""
-    rng = np.random.default_rng(7)
-    palette = rng.integers(60, 256, (int(ids.max(initial=0)) + 1, 3)).astype(np.uint8)
-    palette[0] = 0
+    """Instance (or class) ids as distinct colours (0 = nothing, black); see :func:`id_colour`."""
+    values = np.unique(ids)
+    palette = np.zeros((int(values.max(initial=0)) + 1, 3), np.uint8)
+    for v in values:
+        palette[v] = id_colour(int(v))
     return palette[ids]
+
+
+def legend_panel(entries: list[tuple[int, str]], width: int, height: int) -> np.ndarray:
+    """A panel listing ``(id, text)`` rows with the id's colour swatch (as :func:`colorize_ids` paints it)."""
+    panel = np.full((height, width, 3), BACKGROUND, np.uint8)
+    row = max(12, min(20, (height - 30) // max(len(entries), 1)))
+    scale = row / 36.0
+    for k, (i, text) in enumerate(entries):
+        y = 30 + k * row
+        if y + row > height:
+            put_text(panel, f"... {len(entries) - k} more", (8, y + row - 4), scale)
+            break
+        panel[y + 3:y + row - 3, 8:8 + row] = id_colour(i)
+        put_text(panel, text, (16 + row, y + row - 6), scale)
+    return panel
+
+
+def _class_map(seg: np.ndarray, table: dict, classes: dict[str, int]) -> np.ndarray:
+    """Semantic mask: each instance id replaced by its class id (0 for nothing or unknown ids)."""
+    lut = np.zeros(int(seg.max(initial=0)) + 1, np.uint16)
+    for i, entry in table.items():
+        if i < len(lut) and entry.cls in classes:
+            lut[i] = classes[entry.cls]
+    return lut[seg]
 
 
 def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
@@ -64,10 +99,32 @@ def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
         if key in gt and np.isfinite(gt[key]).any():
             mag = np.hypot(gt[key][..., 0], gt[key][..., 1])
             panels.append((colorize_flow(gt[key]), f"{key.replace('_', ' ')} max {np.nanmax(mag):.1f} px"))
-    if "segmentation" in gt:
-        panels.append((colorize_ids(gt["segmentation"]), "segmentation"))
     h, w = panels[0][0].shape[:2]
     cell_h = int(round(CELL_W * h / w))
+    if "segmentation" in gt:
+        seg = gt["segmentation"]
+        dataset = Dataset(root)
+        table, classes = dataset.objects, dataset.classes
+        panels.append((colorize_ids(seg), "segmentation (instances)"))
+        present = [int(i) for i in np.unique(seg) if i]
+        panels.append((legend_panel([(i, _describe(i, table)) for i in present], CELL_W, cell_h),
+                       "instance ids"))
+        semantic = _class_map(seg, table, classes)
+        panels.append((colorize_ids(semantic), "classes"))
+        names = {v: k for k, v in classes.items()}
+        panels.append((legend_panel([(c, f"{c}: {names.get(c, '?')}") for c in np.unique(semantic) if c], CELL_W,
+                                    cell_h), "class ids"))
+        moving = [i for i in present if i in table and table[i].moving]
+        if moving and "flow_forward" in gt and np.isfinite(gt["flow_forward"]).any():
+            on = np.isin(seg, moving)
+            flow = np.where(on[..., None], gt["flow_forward"], np.nan)
+            mag = np.hypot(flow[..., 0], flow[..., 1])
+            peak = float(np.nanmax(mag)) if np.isfinite(mag).any() else 0.0
+            panels.append((colorize_flow(flow), f"flow of moving objects max {peak:.1f} px"))
+    for key in ("occluded_forward", "occluded_backward"):
+        if key in gt:
+            img = np.where(gt[key][..., None], np.uint8(255), np.uint8(0)).repeat(3, axis=-1)
+            panels.append((img, f"{key.replace('_', ' ')} ({100 * gt[key].mean():.1f} %)"))
     cols = 2
     rows = (len(panels) + cols - 1) // cols
     sheet = np.full((rows * (cell_h + 4), cols * (CELL_W + 4), 3), BACKGROUND, np.uint8)
@@ -76,6 +133,14 @@ def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
         cell = label_panel(fit_cell(img, CELL_W, cell_h), f"{text} (frame {frame})" if i < 2 else text)
         sheet[r * (cell_h + 4):r * (cell_h + 4) + cell_h, c * (CELL_W + 4):c * (CELL_W + 4) + CELL_W] = cell
     return sheet
+
+
+def _describe(i: int, table: dict) -> str:
+    entry = table.get(i)
+    if entry is None:
+        return f"{i}: (not in dataset.json)"
+    part = f"/{entry.part}" if entry.part and entry.part != entry.name else ""
+    return f"{i}: {entry.name}{part} ({entry.cls}){' moving' if entry.moving else ''}"
 
 
 def write_frame_sheet(root: str | Path, frame: int, path: str | Path) -> Path:

@@ -79,13 +79,13 @@ def colour_bar(height: int, vmin: float, vmax: float, width: int = 110) -> np.nd
     col = cv2.applyColorMap(np.round(t * 255).astype(np.uint8)[:, None], cv2.COLORMAP_TURBO)[:, 0, ::-1]
     img[top:bottom, bar_x0:bar_x1] = col[:, None, :]
     cv2.rectangle(img, (bar_x0 - 1, top - 1), (bar_x1, bottom), (200, 200, 200), 1)
-    _put(img, f"depth [{unit}]", (6, 22), 0.45)
+    put_text(img, f"depth [{unit}]", (6, 22), 0.45)
     lo, hi = vmin * factor, vmax * factor
     for tick in _nice_ticks(lo, hi):
         y = int(round(top + (tick - lo) / (hi - lo) * (bottom - top - 1)))
         cv2.line(img, (bar_x1, y), (bar_x1 + 6, y), (220, 220, 220), 1)
         label = f"{tick:.0f}" if unit == "mm" and abs(tick) >= 10 else f"{tick:.3g}"
-        _put(img, label, (bar_x1 + 9, y + 5), 0.42)
+        put_text(img, label, (bar_x1 + 9, y + 5), 0.42)
     return img
 
 
@@ -93,7 +93,7 @@ def colour_bar(height: int, vmin: float, vmax: float, width: int = 110) -> np.nd
 # drawing helpers
 
 
-def _put(img, text, org, scale=0.55, color=TEXT, thickness=1):
+def put_text(img, text, org, scale=0.55, color=TEXT, thickness=1):
     cv2.putText(img, text, org, FONT, scale, (0, 0, 0), thickness + 2, cv2.LINE_AA)
     cv2.putText(img, text, org, FONT, scale, color, thickness, cv2.LINE_AA)
 
@@ -103,7 +103,7 @@ def label_panel(panel: np.ndarray, text: str) -> np.ndarray:
     (tw, th), base = cv2.getTextSize(text, FONT, 0.55, 1)
     band = panel[: th + base + 10, : tw + 14]
     band[:] = (band * 0.35).astype(np.uint8)
-    _put(panel, text, (7, th + 6), 0.55)
+    put_text(panel, text, (7, th + 6), 0.55)
     return panel
 
 
@@ -213,9 +213,9 @@ def make_overview(
         if finite.size:
             lines.append(f"filled depth {finite.min() * factor:.4g} - {finite.max() * factor:.4g} {unit}")
         for k, line in enumerate(lines):
-            _put(sheet, line, (x + 14, y + 34 + 28 * k), 0.55)
+            put_text(sheet, line, (x + 14, y + 34 + 28 * k), 0.55)
     sheet[boxes[0][1]:boxes[0][1] + bar_h, width - BAR_W:] = bar
-    _put(sheet, title or "rgbd2scene overview", (GAP + 4, 28), 0.75, thickness=2)
+    put_text(sheet, title or "rgbd2scene overview", (GAP + 4, 28), 0.75, thickness=2)
     return sheet
 
 
