@@ -85,7 +85,7 @@ def test_render_writes_a_contact_sheet_of_every_map(scene_and_dataset):
     _, dataset = scene_and_dataset
     sheet = cv2.imread(str(dataset / "contact_sheet.png"))
     assert sheet is not None
-    # 2 columns x 4 rows: both eyes, depth, disparity, normals, both flows, segmentation
+    # 3 columns: both eyes, depth, disparity, normals, both flows, instance and class masks with legends
     assert sheet.shape[1] > sheet.shape[0] * 0.9 and sheet.std() > 10
 
 

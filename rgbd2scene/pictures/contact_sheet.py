@@ -125,7 +125,7 @@ def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
         if key in gt:
             img = np.where(gt[key][..., None], np.uint8(255), np.uint8(0)).repeat(3, axis=-1)
             panels.append((img, f"{key.replace('_', ' ')} ({100 * gt[key].mean():.1f} %)"))
-    cols = 2
+    cols = 3
     rows = (len(panels) + cols - 1) // cols
     sheet = np.full((rows * (cell_h + 4), cols * (CELL_W + 4), 3), BACKGROUND, np.uint8)
     for i, (img, text) in enumerate(panels):
