@@ -43,6 +43,7 @@ writes ``benchmarks/results/render.md``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -62,6 +63,7 @@ sys.path.insert(0, str(ROOT))
 from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.stages.blender import run_task  # noqa: E402
 from rgbd2scene.stages.render import DEFAULT_CHUNK, RenderOptions, load_scene, render_model, render_task  # noqa: E402
+from rgbd2scene.stages.scene import SceneOptions  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
 SAMPLE = ROOT / "data_samples" / "tissue"
@@ -69,7 +71,11 @@ WORK = ROOT / "bench_out" / "render"
 PATH_FRAMES = 100
 SIZE = (512, 256)
 QUICK_QUALITY_SIZE = (256, 128)
-SECTIONS = ("quality", "gt", "memory")
+SECTIONS = ("quality", "gt", "motion", "memory")
+#: Scenes of the motion section: the static scene against moving ones (flags of ``rgbd2scene scene``).
+MOTION_SCENES = {"static": (), "breathing tissue": ("--deform", "breathing")}
+if "instrument" in {f.name for f in dataclasses.fields(SceneOptions)}:
+    MOTION_SCENES["instrument + breathing"] = ("--instrument", "--deform", "breathing")
 #: Quality frames (scored and timed; each follows a warm-up frame), spread along the 100-frame path.
 QUALITY_FRAMES = (10, 50, 90)
 QUICK_QUALITY_FRAMES = (50,)
@@ -140,13 +146,14 @@ def default_setting() -> Setting:
     return Setting(d.samples, d.adaptive, d.denoise)
 
 
-def build_scene(folder: Path) -> None:
-    """``rgbd2scene scene`` on the bundled sample: default material, scan path of 100 frames."""
+def build_scene(folder: Path, extra: tuple[str, ...] = ()) -> None:
+    """``rgbd2scene scene`` on the bundled sample: default material, scan path of 100 frames (plus ``extra``
+    flags, e.g. ``--deform breathing``)."""
     if folder.exists():
         shutil.rmtree(folder)
     cmd = [sys.executable, "-c", "import sys; from rgbd2scene.cli import main; sys.exit(main(sys.argv[1:]))",
            "scene", "--rgb", str(SAMPLE / "rgb.png"), "--depth", str(SAMPLE / "depth.png"),
-           "--camera", str(SAMPLE / "camera.json"), "-o", str(folder), "--frames", str(PATH_FRAMES)]
+           "--camera", str(SAMPLE / "camera.json"), "-o", str(folder), "--frames", str(PATH_FRAMES), *extra]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     if proc.returncode != 0:
         raise RuntimeError(f"building the scene failed: {' '.join(cmd)}\n{proc.stderr[-2000:]}")
@@ -464,6 +471,7 @@ def main(argv: list[str] | None = None) -> int:
     out_md = args.out if args.out is not None else str(
         WORK / "render.md" if args.quick else ROOT / "benchmarks" / "results" / "render.md")
     gt_frames, gt_repeats = (4, 1) if args.quick else (10, 3)
+    motion_frames, motion_repeats = (4, 1) if args.quick else (6, 2)
     candidates = QUICK_CANDIDATES if args.quick else CANDIDATES
     default = default_setting()
     if default not in candidates:
@@ -519,13 +527,40 @@ def main(argv: list[str] | None = None) -> int:
                   f"mesh at 512x256 and 16 samples: ~{ISSUE_PLAIN_CYCLES_S} s; VisionBlender's add-on: "
                   f"~{ISSUE_VISIONBLENDER_S} s with inexact ground truth."]
 
+    if "motion" in args.sections:
+        print(f"\n3. moving scenes at {default.label}, {SIZE[0]}x{SIZE[1]}, frames 0-{motion_frames - 1}, "
+              f"{motion_repeats} alternating run(s) each: {', '.join(MOTION_SCENES)}", flush=True)
+        rows = []
+        for name, flags in MOTION_SCENES.items():
+            folder = scene if not flags else WORK / f"scene_{'_'.join(f.strip('-') for f in flags)}"
+            if flags:
+                build_scene(folder, flags)
+            print(f"  {name}", flush=True)
+            rows.append((name, flags, gt_cost(folder, default, motion_frames, motion_repeats, SIZE)))
+        static = rows[0][2]["all"]["steady"]
+        lines = ["| scene | flags | RGB only s / stereo frame | RGB + GT s | GT overhead | vs static (RGB + GT) |",
+                 "|---|---|---|---|---|---|"]
+        for name, flags, g in rows:
+            lines.append(f"| {name} | `{' '.join(flags) or '-'}` | {g['none']['steady']:.2f} "
+                         f"| {g['all']['steady']:.2f} | {100 * (g['ratio'] - 1):+.1f} % "
+                         f"| {g['all']['steady'] / static:.2f}x |")
+        worst = max(g["ratio"] for _, _, g in rows)
+        verdict = "within" if worst - 1.0 <= GT_TARGET else "over"
+        table = "\n".join(lines) + (f"\n\nGround truth of moving scenes adds occlusion maps (ray casting the scene "
+                                    f"model at this and the neighbouring frames) and, for deforming tissue, the "
+                                    f"deformed vertices per frame. Worst GT overhead {100 * (worst - 1):+.1f} %: "
+                                    f"{verdict} the +{100 * GT_TARGET:.0f} % target.")
+        print(table, flush=True)
+        parts += ["", f"## 3. Moving scenes ({default.label}, {SIZE[0]}x{SIZE[1]}, frames 0-{motion_frames - 1}, "
+                  f"{motion_repeats} alternating run(s) each)", "", table]
+
     if "memory" in args.sections:
-        print(f"\n3. memory: {frames_memory} frames, RGB + all GT at {default.label}, {SIZE[0]}x{SIZE[1]}, "
+        print(f"\n4. memory: {frames_memory} frames, RGB + all GT at {default.label}, {SIZE[0]}x{SIZE[1]}, "
               f"chunks of {DEFAULT_CHUNK}", flush=True)
         chunks = memory_run(scene, default, frames_memory, DEFAULT_CHUNK, SIZE)
         table = memory_table(chunks)
         print(table, flush=True)
-        parts += ["", f"## 3. Memory ({frames_memory} frames, RGB + all GT, {default.label}, {SIZE[0]}x{SIZE[1]}, "
+        parts += ["", f"## 4. Memory ({frames_memory} frames, RGB + all GT, {default.label}, {SIZE[0]}x{SIZE[1]}, "
                   f"chunks of {DEFAULT_CHUNK} frames)", "", "Peak: the worker's `ru_maxrss`; RSS: its resident "
                   "memory read from `/proc` at its progress lines (a chunk renders all its RGB frames, then all "
                   "its ground truth).",

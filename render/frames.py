@@ -330,12 +330,16 @@ def _check_blend_agrees(scene, camera, description: SceneDescription, blend: Pat
 
 
 def _check_pose(scene, camera, description: SceneDescription, index: int) -> None:
-    """The camera Blender renders from (keyed on its path) is the model's pose at this frame."""
-    expected = blender_pose_from_opencv(description.camera_pose(index))
-    found = np.array(camera.matrix_world, dtype=np.float64)
-    if not np.allclose(found, expected, atol=POSE_TOLERANCE):
-        raise WorkerError(f"frame {index}: the blend's camera pose differs from the scene model's by "
-                          f"{np.abs(found - expected).max():.2e} (> {POSE_TOLERANCE})")
+    """The camera and every posed part Blender renders (keyed on their tracks) are at the model's poses of
+    this frame."""
+    checks = [("camera", camera, blender_pose_from_opencv(description.camera_pose(index)))]
+    by_id = {o.pass_index: o for o in scene.objects if o.type == "MESH"}
+    checks += [(f"part {p.id}", by_id[p.id], p.pose_at(index)) for _, p in description.parts() if p.poses is not None]
+    for what, obj, expected in checks:
+        found = np.array(obj.matrix_world, dtype=np.float64)
+        if not np.allclose(found, expected, atol=POSE_TOLERANCE):
+            raise WorkerError(f"frame {index}: the blend's {what} pose differs from the scene model's by "
+                              f"{np.abs(found - expected).max():.2e} (> {POSE_TOLERANCE})")
 
 
 def _rss_mb() -> float:
