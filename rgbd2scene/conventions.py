@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-CONVENTIONS_VERSION = "1.0"
+CONVENTIONS_VERSION = "1.1"
 
 #: T_blendercam_cam: Blender's camera looks down -Z with +Y up; OpenCV's looks down +Z with +Y down.
 BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
