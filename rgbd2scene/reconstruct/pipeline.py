@@ -6,9 +6,12 @@ Writing the results is the mesh stage's job (``rgbd2scene.stages.mesh``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from rgbd2scene.capture.readers import Capture
+from rgbd2scene.conventions import transform_points
 from rgbd2scene.errors import UserError
 from rgbd2scene.reconstruct.fill import FillResult, fill_depth
 from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
@@ -32,20 +35,38 @@ class MeshOptions:
 
 @dataclass
 class Reconstruction:
+    """A reconstruction and its record; ``sections`` are further scene.json sections (e.g. ``fusion``)."""
+
     capture: Capture
     options: MeshOptions
     filled: FillResult
     mesh: Mesh
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    sections: dict = field(default_factory=dict)
+
+
+def restrict_to_image(filled: FillResult, image_mask: np.ndarray) -> FillResult:
+    """The fill result with NaN outside ``image_mask`` (pixels without image data are never meshed)."""
+    depth = np.where(image_mask, filled.depth, np.nan).astype(np.float32)
+    stats = {**filled.stats, "outside_image_fraction": float(np.mean(~image_mask))}
+    return replace(filled, depth=depth, filled=filled.filled & image_mask, stats=stats)
 
 
 def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconstruction:
-    """Fill holes, back-project into a grid mesh without curtains, and smooth along the viewing rays."""
+    """Fill holes, back-project into a grid mesh without curtains, and smooth along the viewing rays.
+
+    The mesh is built in the capture camera's frame and then placed in the world frame by
+    ``capture.T_world_capture``; pixels outside ``capture.image_mask`` stay empty.
+    """
     options = options or MeshOptions()
     timings = {}
     t0 = time.perf_counter()
-    filled = fill_depth(capture.depth, capture.rgb, method=options.fill)
+    # A rectified image's empty margins are no sensor border band: extrapolating into them would paint a
+    # frame of made-up depth along the margins.
+    filled = fill_depth(capture.depth, capture.rgb, method=options.fill, fill_border=capture.image_mask is None)
+    if capture.image_mask is not None:
+        filled = restrict_to_image(filled, capture.image_mask)
     timings["fill_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -58,6 +79,8 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
 
     t0 = time.perf_counter()
     mesh, smooth_stats = smooth_mesh(mesh, method=options.smooth, iterations=options.smooth_iterations)
+    if capture.posed:
+        mesh.vertices = transform_points(capture.T_world_capture, mesh.vertices)
     timings["smooth_s"] = time.perf_counter() - t0
     timings["compute_s"] = timings["fill_s"] + timings["mesh_s"] + timings["smooth_s"]
     stats = {"fill": filled.stats, "mesh": mesh_stats, "smooth": smooth_stats}
