@@ -61,7 +61,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rgbd2scene import atomic  # noqa: E402
+from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.stages.render import DEFAULT_CHUNK, DEFAULT_SAMPLES, render_dataset  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
