@@ -60,12 +60,11 @@ def _add_capture_args(p: argparse.ArgumentParser) -> None:
     f = p.add_argument_group("fusion of several frames")
     f.add_argument("--voxel-size", type=float, help="TSDF voxel edge in metres (default 1.5 pixel footprints at "
                    "the first frame's median depth)")
-    f.add_argument("--min-frames", type=int, default=1,
-                   help="keep surface seen by at least this many frames (default 1)")
+    f.add_argument("--min-frames", type=int, help="keep surface seen by at least this many frames (default 1)")
     s = p.add_argument_group("stereo")
     s.add_argument("--matcher", default="auto", choices=("auto", "sgbm", "elas"),
                    help="stereo matcher (default auto: ELAS when pyelas is installed, else SGBM)")
-    s.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=(0.02, 0.5),
+    s.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="expected depth range in metres; sets the disparities searched (default 0.02 0.5)")
 
 
@@ -161,7 +160,9 @@ def _reconstruct(args):
     if mode == "stereo":
         from rgbd2scene.capture.stereo import StereoOptions, load_stereo_capture
 
-        stereo = StereoOptions(min_depth=args.depth_range[0], max_depth=args.depth_range[1], matcher=args.matcher)
+        stereo = StereoOptions(matcher=args.matcher)
+        if args.depth_range:
+            stereo.min_depth, stereo.max_depth = args.depth_range
         try:
             stereo.check()
         except ValueError as exc:
@@ -175,9 +176,11 @@ def _reconstruct(args):
     if args.voxel_size is not None and not args.voxel_size > 0:
         raise UserError(f"--voxel-size: must be a positive number of metres, got {args.voxel_size}")
     poses, record = _given_poses(args) if args.poses else (None, None)
-    if args.min_frames < 1:
-        raise UserError(f"--min-frames: must be at least 1, got {args.min_frames}")
-    fusion = FusionOptions(voxel_size=args.voxel_size, min_frames=args.min_frames)
+    fusion = FusionOptions(voxel_size=args.voxel_size)
+    if args.min_frames is not None:
+        if args.min_frames < 1:
+            raise UserError(f"--min-frames: must be at least 1, got {args.min_frames}")
+        fusion.min_frames = args.min_frames
     try:
         return reconstruct_fused(captures, poses, options, fusion, poses_record=record)
     except ValueError as exc:
@@ -199,8 +202,8 @@ def _report(recon) -> str:
     if stereo:
         st = stereo["stats"]
         pct = st["depth_percentiles_m"]
-        text += (f"\nstereo ({st['matcher']}) {st['seconds']:.3f}s: confident depth on {100 * st['coverage']:.1f} % of "
-                 f"the image, depth {1e3 * pct['5']:.1f}-{1e3 * pct['95']:.1f} mm (5-95 %)")
+        text = (f"stereo ({st['matcher']}) {st['seconds']:.3f}s: confident depth on {100 * st['coverage']:.1f} % of "
+                f"the image, depth {1e3 * pct['5']:.1f}-{1e3 * pct['95']:.1f} mm (5-95 %)\n{text}")
     return text
 
 

@@ -200,18 +200,27 @@ def drop_small_components(mesh: Mesh, min_triangles: int) -> tuple[Mesh, dict]:
 def frame_agreement(mesh: Mesh, captures: list[Capture], poses: np.ndarray, rc=None) -> list[dict]:
     """How well the mesh reproduces each frame's own depth where that frame sees it.
 
-    The mesh is ray cast through each frame's pixel centres at its pose; over the frame's valid pixels,
-    ``coverage`` is the fraction the mesh covers, and the absolute depth differences there give
-    ``median_mm``, ``p90_mm`` and ``mean_mm`` (``rc``: a ready ``Raycaster`` of the mesh).
+    The mesh is ray cast through each frame's pixel centres at its pose (``rc``: a ready ``Raycaster`` of
+    the mesh); see :func:`agreement_rows` for the figures.
     """
     rc = rc or raycaster(mesh.vertices, mesh.triangles)
+    return agreement_rows(rendered_depths(rc, captures, poses), captures)
+
+
+def rendered_depths(rc, captures: list[Capture], poses: np.ndarray) -> list[np.ndarray]:
+    """The depth maps of a ray-cast mesh seen by each frame's camera at its pose (NaN on a miss)."""
+    return [rc.cast(c.intrinsics.K, c.intrinsics.width, c.intrinsics.height, T, normals="none")["depth"]
+            for c, T in zip(captures, poses, strict=True)]
+
+
+def agreement_rows(rendered: list[np.ndarray], captures: list[Capture]) -> list[dict]:
+    """Per frame, over its valid pixels: ``coverage`` (the fraction the rendered mesh covers) and the
+    ``median_mm``, ``p90_mm`` and ``mean_mm`` absolute difference of the rendered and the frame's depth."""
     rows = []
-    for k, (cap, T) in enumerate(zip(captures, poses, strict=True)):
-        intr = cap.intrinsics
-        rendered = rc.cast(intr.K, intr.width, intr.height, T, normals="none")["depth"]
+    for k, (depth, cap) in enumerate(zip(rendered, captures, strict=True)):
         seen = np.isfinite(cap.depth)
-        both = seen & np.isfinite(rendered)
-        err = np.abs(rendered[both].astype(np.float64) - cap.depth[both]) * 1e3
+        both = seen & np.isfinite(depth)
+        err = np.abs(depth[both].astype(np.float64) - cap.depth[both]) * 1e3
         rows.append({"frame": k, "valid_px": int(seen.sum()), "coverage": float(both.sum() / max(seen.sum(), 1)),
                      "median_mm": float(np.median(err)) if err.size else float("nan"),
                      "p90_mm": float(np.percentile(err, 90)) if err.size else float("nan"),
@@ -267,11 +276,9 @@ def reconstruct_fused(captures: list[Capture], poses: np.ndarray | None = None, 
     timings["compute_s"] = sum(timings[k] for k in ("fill_s", "poses_s", "fuse_s", "smooth_s"))
 
     t0 = time.perf_counter()
-    rc = raycaster(mesh.vertices, mesh.triangles)
-    agreement = frame_agreement(mesh, captures, poses, rc)
-    first = captures[0]
-    seen_first = rc.cast(first.intrinsics.K, first.intrinsics.width, first.intrinsics.height, poses[0],
-                         normals="none")["depth"]
+    rendered = rendered_depths(raycaster(mesh.vertices, mesh.triangles), captures, poses)
+    agreement = agreement_rows(rendered, captures)
+    first, seen_first = captures[0], rendered[0]
     timings["agreement_s"] = time.perf_counter() - t0
 
     holes = ~np.isfinite(first.depth)
