@@ -142,10 +142,15 @@ def fusion_markdown(rows: list[dict], extra: dict, repeats: int) -> list[str]:
     for r in rows:
         if r is default:
             continue
-        for k, (a, b) in enumerate(zip(r["agreement"], default["agreement"], strict=True)):
-            if a["median_mm"] < b["median_mm"] - 0.01 or a["coverage"] > b["coverage"] + 0.001:
-                losses.append(f"{r['variant']} beats the default on frame {k} ({100 * a['coverage']:.1f} % / "
-                              f"{a['median_mm']:.2f} mm against {100 * b['coverage']:.1f} % / {b['median_mm']:.2f} mm)")
+        pairs = list(enumerate(zip(r["agreement"], default["agreement"], strict=True)))
+        closer = [f"{k} ({a['median_mm']:.2f} vs {b['median_mm']:.2f} mm)" for k, (a, b) in pairs
+                  if a["median_mm"] < b["median_mm"] - 0.01]
+        more = [f"{k} (+{100 * (a['coverage'] - b['coverage']):.1f} points)" for k, (a, b) in pairs
+                if a["coverage"] > b["coverage"] + 0.001]
+        if closer:
+            losses.append(f"{r['variant']} agrees better with frame(s) {', '.join(closer)}")
+        if more:
+            losses.append(f"{r['variant']} covers more of frame(s) {', '.join(more)}")
     out += ["Where the default loses: " + ("; ".join(losses) if losses else "nowhere in this table") + ".", ""]
     return out
 

@@ -182,6 +182,8 @@ def fuse_tsdf(captures: list[Capture], poses: np.ndarray,
 def drop_small_components(mesh: Mesh, min_triangles: int) -> tuple[Mesh, dict]:
     """The mesh without its connected pieces of fewer than ``min_triangles`` triangles (and unused vertices);
     stats: dropped_components, dropped_triangles."""
+    if mesh.n_triangles == 0:
+        return mesh, {"dropped_components": 0, "dropped_triangles": 0}
     n = mesh.n_vertices
     lo, hi, _ = mesh_edges(mesh.triangles, n)
     _, labels = connected_components(sp.coo_matrix((np.ones(lo.size), (lo, hi)), shape=(n, n)), directed=False)
