@@ -520,6 +520,6 @@ def load_stereo_capture(left_path: str | Path, right_path: str | Path, calib_pat
     info = {"stereo": {"left": str(left_path), "right": str(right_path), "calibration": str(calib_path),
                        "calibration_values": calib.to_dict(), "rectification": rect.to_dict(),
                        "options": options.to_dict(), "stats": {**result.stats, "rectify_s": round(t_rectify, 4)}}}
-    return Capture(pair.left, result.depth, intrinsics, rgb_path=str(left_path), depth_path=str(right_path),
-                   depth_format="stereo", depth_scale=None, info=info, T_world_capture=rect.T_left_rectified,
-                   image_mask=pair.left_mask)
+    return Capture(pair.left, result.depth, intrinsics, rgb_path=str(left_path),
+                   depth_path=f"{left_path}, {right_path}", depth_format="stereo", depth_scale=None, info=info,
+                   T_world_capture=rect.T_left_rectified, image_mask=pair.left_mask)
