@@ -9,8 +9,8 @@ Usage: ``python benchmarks/bench_capture.py [--quick] [--repeats N] [--out bench
    absolute depth difference (mm). Variants: the single-frame pipeline on frame 0 (what one frame gives;
    its mesh covers only what frame 0 saw), the fused default (no per-frame fill), per-frame ``auto`` fill
    before fusing, and poses from RGB-D odometry instead of the file. Time: the median over ``--repeats``
-   runs of the reconstruction (fusion: poses + integration + extraction), and the wall time of the whole
-   ``rgbd2scene mesh`` command in a fresh process (reading, fusion, agreement, files).
+   runs of the reconstruction (fusion: poses + integration + extraction + the agreement ray casts), and
+   the wall and CPU time of the whole ``rgbd2scene mesh`` command in a fresh process.
 2. **Stereo, synthetic truth**: a 640x480 rectified pair of a textured curved surface (disparity
    24-60 px, a smooth bump) made by warping one texture; every pixel whose match lies inside the right
    image is scored: coverage of confident depth, disparity error median and 95th percentile, and the
@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -65,13 +67,17 @@ RGBD2SCENE = Path(sys.executable).with_name("rgbd2scene")
 
 
 def _timed(fn, repeats: int):
-    """(result of the last run, median seconds over ``repeats`` runs)."""
-    times, result = [], None
+    """(result of the last run, median wall seconds, median CPU seconds of this process over ``repeats`` runs).
+
+    CPU time (all threads) is less affected than wall time by other programs on a shared machine.
+    """
+    wall, cpu, result = [], [], None
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         result = fn()
-        times.append(time.perf_counter() - t0)
-    return result, statistics.median(times)
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return result, statistics.median(wall), statistics.median(cpu)
 
 
 # --------------------------------------------------------------------------------------------- fusion
@@ -95,10 +101,12 @@ def bench_fusion(repeats: int, quick: bool) -> tuple[list[dict], dict]:
         variants = variants[:2]
     rows = []
     for name, run in variants:
-        recon, seconds = _timed(run, repeats if "default" in name else 1)
+        recon, seconds, cpu = _timed(run, repeats if "default" in name else 1)
         agreement = recon.sections["fusion"]["agreement"] if "fusion" in recon.sections else \
             frame_agreement(recon.mesh, frames, poses)
-        row = {"variant": name, "seconds": seconds, "agreement": agreement, "triangles": recon.mesh.n_triangles}
+        row = {"variant": name, "seconds": seconds, "cpu_s": cpu, "compute_s": recon.timings["compute_s"],
+               "agreement": agreement,
+               "triangles": recon.mesh.n_triangles}
         if "fusion" in recon.sections:
             row["fusion_timings"] = recon.sections["fusion"]["timings"]
             row["fusion_stats"] = recon.sections["fusion"]["stats"]
@@ -107,20 +115,30 @@ def bench_fusion(repeats: int, quick: bool) -> tuple[list[dict], dict]:
         print(f"  {name:44s} {seconds:6.2f} s, coverage {min(a['coverage'] for a in agreement) * 100:5.1f}-"
               f"{max(a['coverage'] for a in agreement) * 100:5.1f} %, worst median {worst:.2f} mm", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), _children_cpu()
         subprocess.run([str(RGBD2SCENE), "mesh", "--rgb", *rgb, "--depth", *depth, "--poses",
                         str(REDWOOD / "trajectory.log"), "--camera", str(REDWOOD / "camera_primesense.json"),
                         "--depth-scale", "1000", "-o", tmp], check=True, capture_output=True)
-        wall = time.perf_counter() - t0
-    return rows, {"command_wall_s": wall}
+        wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
+        command_timings = json.loads((Path(tmp) / "scene.json").read_text())["timings"]
+    return rows, {"command_wall_s": wall, "command_cpu_s": cpu, "command_write_s": command_timings["write_s"]}
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def fusion_markdown(rows: list[dict], extra: dict, repeats: int) -> list[str]:
     out = ["## 1. Fusion: Redwood living room 1, 5 frames, 640x480", "",
-           f"Reconstruction time: median of {repeats} runs for the default, one run otherwise. Per frame: "
-           "coverage of its valid pixels / median / p90 absolute depth difference in mm. Bold: best per column.", ""]
-    header = "| variant | s | triangles | " + " | ".join(f"frame {k}" for k in range(5)) + " | mean median mm |"
-    out += [header, "|" + "---|" * (4 + 5)]
+           f"Time: compute s = the reconstruction's own stage times (fusion: poses, fill, fuse, smooth; single "
+           f"frame: fill, mesh, smooth), last run; s and CPU s = the whole call, wall and CPU of all threads, "
+           f"median of {repeats} runs for the default, one run otherwise (fusion: including the agreement ray "
+           "casts it records). Per frame: coverage of its valid "
+           "pixels / median / p90 absolute depth difference in mm. Bold: best per column.", ""]
+    header = ("| variant | compute s | s | CPU s | triangles | " + " | ".join(f"frame {k}" for k in range(5))
+              + " | mean median mm |")
+    out += [header, "|" + "---|" * (6 + 5)]
     best_cov = [max(r["agreement"][k]["coverage"] for r in rows) for k in range(5)]
     for r in rows:
         cells = []
@@ -129,15 +147,17 @@ def fusion_markdown(rows: list[dict], extra: dict, repeats: int) -> list[str]:
             cells.append((f"**{cov}**" if a["coverage"] == best_cov[k] else cov)
                          + f" / {a['median_mm']:.2f} / {a['p90_mm']:.1f}")
         mean = np.mean([a["median_mm"] for a in r["agreement"]])
-        out.append(f"| {r['variant']} | {r['seconds']:.2f} | {r['triangles']:,} | " + " | ".join(cells)
-                   + f" | {mean:.2f} |")
+        out.append(f"| {r['variant']} | {r['compute_s']:.2f} | {r['seconds']:.2f} | {r['cpu_s']:.2f} | "
+                   f"{r['triangles']:,} | " + " | ".join(cells) + f" | {mean:.2f} |")
     default = next(r for r in rows if "default" in r["variant"])
     t, s = default["fusion_timings"], default["fusion_stats"]
     out += ["", f"Default run: poses {t['poses_s']:.2f} s, TSDF prepare {s['prepare_s']:.2f} s, integrate "
             f"{s['integrate_s']:.2f} s, extract {s['extract_s']:.2f} s (fuse {t['fuse_s']:.2f} s), agreement "
             f"{t['agreement_s']:.2f} s; voxel {s['voxel_size_m'] * 1e3:.2f} mm, {s['blocks']} blocks, "
             f"{s['dropped_components']} debris pieces ({s['dropped_triangles']} triangles) dropped. "
-            f"`rgbd2scene mesh` with 5 frames, fresh process: {extra['command_wall_s']:.2f} s wall.", ""]
+            f"`rgbd2scene mesh` with 5 frames, fresh process (imports, reading, fusion, agreement, files and "
+            f"overview.png): {extra['command_wall_s']:.2f} s wall, {extra['command_cpu_s']:.2f} s CPU, of which "
+            f"writing the folder {extra['command_write_s']:.2f} s.", ""]
     losses = []
     for r in rows:
         if r is default:
@@ -197,10 +217,10 @@ def bench_stereo_synthetic(repeats: int) -> list[dict]:
     rows = []
     for matcher in matchers():
         options = StereoOptions(matcher=matcher, min_depth=0.03, max_depth=0.3)
-        result, seconds = _timed(lambda o=options: stereo_depth(pair, f, baseline, o), repeats)
+        result, seconds, cpu = _timed(lambda o=options: stereo_depth(pair, f, baseline, o), repeats)
         good = np.isfinite(result.disparity) & scored
         err = np.abs(result.disparity - truth)[good]
-        rows.append({"matcher": matcher, "seconds": seconds, "coverage": float(good.sum() / scored.sum()),
+        rows.append({"matcher": matcher, "seconds": seconds, "cpu_s": cpu, "coverage": float(good.sum() / scored.sum()),
                      "median_px": float(np.median(err)), "p95_px": float(np.percentile(err, 95)),
                      "bad1": float(np.mean(err > 1.0))})
         print(f"  synthetic 640x480 {matcher}: {seconds:.2f} s, coverage {100 * rows[-1]['coverage']:.1f} %, "
@@ -232,11 +252,11 @@ def bench_stereo_hamlyn(repeats: int, quick: bool) -> list[dict]:
                 pair = rectify_pair(c, rect, lt, rt)
                 return rect, stereo_depth(pair, rect.K[0, 0], rect.baseline, o)
 
-            (rect, result), seconds = _timed(run, repeats)
+            (rect, result), seconds, cpu = _timed(run, repeats)
             depths[matcher] = result.depth
             pct = result.stats["depth_percentiles_m"]
             rows.append({"size": f"{size[0]}x{size[1]}", "rectified": f"{rect.width}x{rect.height}",
-                         "matcher": matcher, "seconds": seconds, "coverage": result.stats["coverage"],
+                         "matcher": matcher, "seconds": seconds, "cpu_s": cpu, "coverage": result.stats["coverage"],
                          "p5_mm": pct["5"] * 1e3, "p50_mm": pct["50"] * 1e3, "p95_mm": pct["95"] * 1e3})
             print(f"  hamlyn {size[0]}x{size[1]} {matcher}: {seconds:.2f} s, coverage "
                   f"{100 * result.stats['coverage']:.1f} %", flush=True)
@@ -252,17 +272,19 @@ def stereo_markdown(synthetic: list[dict], hamlyn: list[dict], repeats: int) -> 
     out = ["## 2. Stereo depth, synthetic truth (640x480, curved textured surface, disparity 24-60 px)", "",
            f"All pixels whose match lies inside the right image are scored; time: median of {repeats} runs of "
            "matching and the confidence filters.", "",
-           "| matcher | s | coverage | median error px | p95 error px | confident px off by > 1 px |",
-           "|---|---|---|---|---|---|"]
+           "| matcher | s | CPU s | coverage | median error px | p95 error px | confident px off by > 1 px |",
+           "|---|---|---|---|---|---|---|"]
     for r in synthetic:
-        out.append(f"| {r['matcher']} | {r['seconds']:.2f} | {100 * r['coverage']:.1f} % | {r['median_px']:.3f} | "
+        out.append(f"| {r['matcher']} | {r['seconds']:.2f} | {r['cpu_s']:.2f} | {100 * r['coverage']:.1f} % | "
+                   f"{r['median_px']:.3f} | "
                    f"{r['p95_px']:.3f} | {100 * r['bad1']:.2f} % |")
     out += ["", "## 3. Stereo depth, Hamlyn heart phantom (no ground truth)", "",
             f"Time: rectification + matching + confidence filters, median of {repeats} runs. Coverage: confident "
             "depth over the rectified image's data pixels. 640x480 is the frame up-sampled (timing only).", "",
-            "| input | rectified | matcher | s | coverage | depth p5 / p50 / p95 mm |", "|---|---|---|---|---|---|"]
+            "| input | rectified | matcher | s | CPU s | coverage | depth p5 / p50 / p95 mm |",
+            "|---|---|---|---|---|---|---|"]
     for r in hamlyn:
-        out.append(f"| {r['size']} | {r['rectified']} | {r['matcher']} | {r['seconds']:.2f} | "
+        out.append(f"| {r['size']} | {r['rectified']} | {r['matcher']} | {r['seconds']:.2f} | {r['cpu_s']:.2f} | "
                    f"{100 * r['coverage']:.1f} % | {r['p5_mm']:.1f} / {r['p50_mm']:.1f} / {r['p95_mm']:.1f} |")
     for r in hamlyn:
         if "sgbm_vs_elas" in r:
@@ -285,17 +307,19 @@ def main(argv: list[str] | None = None) -> int:
     if not SHARED.is_dir():
         print(f"{SHARED} is absent: the capture benchmark needs the Redwood and Hamlyn samples", file=sys.stderr)
         return 0
-    t0 = time.perf_counter()
+    t0, load_start = time.perf_counter(), round(os.getloadavg()[0], 2)
     print("fusion (Redwood, 5 frames):", flush=True)
     fusion_rows, extra = bench_fusion(repeats, args.quick)
     print("stereo:", flush=True)
     synthetic = bench_stereo_synthetic(repeats)
     hamlyn = bench_stereo_hamlyn(repeats, args.quick)
     settings = {"quick": args.quick, "repeats": repeats, "python": platform.python_version(),
-                "machine": f"{platform.machine()}, {len(__import__('os').sched_getaffinity(0))} CPUs",
+                "machine": f"{platform.machine()}, {len(os.sched_getaffinity(0))} CPUs",
+                "load_average_1min": [load_start, round(os.getloadavg()[0], 2)],
                 "software": software_versions(), "elas": elas_available()}
     lines = ["# Capture benchmark (`benchmarks/bench_capture.py`)", "",
-             f"Settings: `{json.dumps(settings)}`. The machine is shared: times vary with the load.", "",
+             f"Settings: `{json.dumps(settings)}`. The machine is shared (load average at start and end above, "
+             "for 2 cores): wall times vary with the load; CPU times less so.", "",
              *fusion_markdown(fusion_rows, extra, repeats), *stereo_markdown(synthetic, hamlyn, repeats), "",
              f"Benchmark wall time {time.perf_counter() - t0:.0f} s."]
     text = "\n".join(lines) + "\n"
