@@ -141,6 +141,13 @@ def test_fused_triangles_face_the_cameras(synthetic_fused):
     assert np.mean(np.sum(mesh.face_normals()[ids] * rays, axis=1) < 0) > 0.99
 
 
+def test_odometry_failure_is_detected_at_endoscopic_scale(synthetic_frames):
+    """Frames 1 and 2 are 13 degrees and 1.4 cm apart at 5 cm: too far for frame-to-frame odometry, which
+    must say so (with Open3D's room-scale outlier threshold of 7 cm every pixel passed as an inlier)."""
+    with pytest.raises(ValueError, match="odometry failed between frames 1 and 2"):
+        estimate_poses(synthetic_frames)
+
+
 def test_fusion_rejects_bad_input(synthetic_frames):
     with pytest.raises(ValueError, match="at least two frames"):
         reconstruct_fused(synthetic_frames[:1], np.eye(4)[None])
@@ -270,3 +277,15 @@ def test_scene_command_fuses_frames_and_builds_the_blend(synthetic_files):
     assert record["fusion"]["poses"]["format"] == "tum" and (out / "scene.blend").is_file()
     mesh = read_ply(out / "mesh.ply")
     assert np.percentile(_distance_to_planes(transform_points(POSES_W[0], mesh.vertices)), 99) < 2e-4
+
+
+def test_mesh_command_without_poses_estimates_them(synthetic_files):
+    folder, rgb, depth = synthetic_files
+    out = folder / "mesh"
+    assert main(["mesh", "--rgb", *map(str, rgb[:2]), "--depth", *map(str, depth[:2]), "--camera",
+                 str(folder / "camera.json"), "--no-overview", "-o", str(out)]) == 0
+    fusion = json.loads((out / "scene.json").read_text())["fusion"]
+    assert fusion["poses"]["source"] == "estimated" and fusion["poses"]["pairs"][0]["fitness"] > 0.9
+    estimated = np.array(fusion["frames"][1]["T_world_cam"])
+    delta = invert_pose(relative_to_first(POSES_W)[1]) @ estimated
+    assert np.linalg.norm(delta[:3, 3]) < 5e-4 and Rotation.from_matrix(delta[:3, :3]).magnitude() < np.radians(0.5)
