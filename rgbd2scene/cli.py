@@ -55,7 +55,8 @@ def _add_capture_args(p: argparse.ArgumentParser) -> None:
                    help="drop triangles seen more obliquely than this many degrees (default 85)")
     m.add_argument("--smooth", help="smoothing: ray (keeps texture registered), taubin, corrective, none "
                    "(default ray; none when fusing frames)")
-    m.add_argument("--smooth-iterations", type=int, default=10, help="smoothing strength (default 10)")
+    m.add_argument("--smooth-iterations", type=int, help="smoothing strength (default 10; 30 for a stereo frame, "
+                   "whose depth is rougher)")
     m.add_argument("--no-overview", action="store_true", help="skip overview.png")
     f = p.add_argument_group("fusion of several frames")
     f.add_argument("--voxel-size", type=float, help="TSDF voxel edge in metres (default 1.5 pixel footprints at "

@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 from rgbd2scene.capture.readers import read_rgb
 from rgbd2scene.capture.stereo import (
     DISTORTION_SIZES,
+    STEREO_SMOOTH_ITERATIONS,
     RectifiedPair,
     StereoOptions,
     calibration_from_json,
@@ -272,6 +273,7 @@ def test_mesh_command_on_the_hamlyn_frame_records_the_stereo_geometry(shared_sam
     capture = record["capture"]
     rect = capture["stereo"]["rectification"]
     assert capture["depth_format"] == "stereo" and capture["stereo"]["stats"]["matcher"] == "sgbm"
+    assert record["smooth"]["iterations"] == STEREO_SMOOTH_ITERATIONS  # the stereo default
     assert np.allclose(np.array(capture["T_world_capture"])[:3, :3], np.array(rect["R1"]).T)
     assert (capture["width"], capture["height"]) == tuple(rect["image_size"])
     assert np.allclose(capture["intrinsics"]["fx"], rect["K"][0][0])

@@ -52,6 +52,13 @@ HAMLYN_FILES = {"K_left": "calib.left.intrinsic.txt", "D_left": "calib.left.dist
                 "K_right": "calib.right.intrinsic.txt", "D_right": "calib.right.distortion.txt",
                 "l2r_mm": "calib.l2r.4x4"}
 MATCHERS = ("auto", "sgbm", "elas")
+#: Ray-smoothing iterations for a stereo frame's mesh (10 for RGB-D). Stereo depth is rough at the pixel
+#: scale (sub-pixel disparity noise of 0.07-0.14 px is about one pixel footprint in depth): on a synthetic
+#: curved surface 30 iterations cut the median normal error from 7.9 to 6.0 degrees (SGBM; ELAS 17 to 13)
+#: and the depth error from 95 to 82 um; on the Hamlyn phantom seen at 3 cm, 10 iterations left 0.5 % of
+#: the pixels failing ``verify``'s left-right check (the other eye sees further), 30 none. Finer relief,
+#: a few pixels across, is flattened more.
+STEREO_SMOOTH_ITERATIONS = 30
 
 
 # ---------------------------------------------------------------------------------------------- calibration

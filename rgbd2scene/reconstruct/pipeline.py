@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rgbd2scene.capture.readers import Capture
+from rgbd2scene.capture.stereo import STEREO_SMOOTH_ITERATIONS
 from rgbd2scene.conventions import transform_points
 from rgbd2scene.errors import UserError
 from rgbd2scene.reconstruct.fill import FillResult, fill_depth
@@ -26,7 +27,7 @@ class MeshOptions:
     max_relative_jump: float = 0.03
     max_grazing_deg: float = 85.0
     smooth: str = "ray"
-    smooth_iterations: int = 10
+    smooth_iterations: int | None = None  # None: 10, or STEREO_SMOOTH_ITERATIONS for a stereo frame
     overview: bool = True
 
     def to_dict(self) -> dict:
@@ -60,6 +61,9 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     ``capture.T_world_capture``; pixels outside ``capture.image_mask`` stay empty.
     """
     options = options or MeshOptions()
+    if options.smooth_iterations is None:
+        stereo = capture.depth_format == "stereo"
+        options = replace(options, smooth_iterations=STEREO_SMOOTH_ITERATIONS if stereo else 10)
     timings = {}
     t0 = time.perf_counter()
     # A rectified image's empty margins are no sensor border band: extrapolating into them would paint a
