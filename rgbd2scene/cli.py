@@ -74,7 +74,21 @@ def _has_capture_input(args) -> bool:
 
 
 def _check_inputs(args) -> str:
-    """The input mode ("rgbd", "fusion" or "stereo") of the capture arguments, or a one-line UserError."""
+    """The input mode ("rgbd", "fusion" or "stereo") of the capture arguments, or a one-line UserError
+    (also when options of another mode are given: they would be ignored)."""
+    mode = _input_mode(args)
+    foreign = {"--voxel-size": args.voxel_size is not None and mode != "fusion",
+               "--min-frames": args.min_frames is not None and mode != "fusion",
+               "--matcher": args.matcher != "auto" and mode != "stereo",
+               "--depth-range": args.depth_range is not None and mode != "stereo"}
+    given = [flag for flag, wrong in foreign.items() if wrong]
+    if given:
+        what = {"rgbd": "a single RGB-D frame", "fusion": "fused RGB-D frames", "stereo": "a stereo frame"}[mode]
+        raise UserError(f"{', '.join(given)} do(es) not apply to {what}")
+    return mode
+
+
+def _input_mode(args) -> str:
     stereo = {"--left": args.left, "--right": args.right, "--stereo-calib": args.stereo_calib}
     if any(stereo.values()):
         if args.rgb or args.depth or args.poses:

@@ -138,6 +138,8 @@ RGB, DEPTH = str(BUNDLED_SAMPLE / "rgb.png"), str(BUNDLED_SAMPLE / "depth.png")
     ("missing_left", "left_nope.png: RGB image not found"),
     ("depth_range", "--depth-range"),
     ("voxel_size", "--voxel-size"),
+    ("fusion_option_on_stereo", "--voxel-size do(es) not apply to a stereo frame"),
+    ("stereo_option_on_rgbd", "--depth-range do(es) not apply to a single RGB-D frame"),
 ])
 def test_capture_mode_errors_are_one_line_exit_2(capture_inputs, capsys, command, case, message):
     d = capture_inputs
@@ -158,6 +160,8 @@ def test_capture_mode_errors_are_one_line_exit_2(capture_inputs, capsys, command
         "missing_left": ["--left", str(d / "left_nope.png"), *stereo[2:]],
         "depth_range": [*stereo, "--depth-range", "0.5", "0.1"],
         "voxel_size": [*two, "--voxel-size", "-1"],
+        "fusion_option_on_stereo": [*stereo, "--voxel-size", "0.001"],
+        "stereo_option_on_rgbd": ["--rgb", RGB, "--depth", DEPTH, "--depth-range", "0.1", "0.5"],
     }[case]
     out = d / "out"
     assert main([command, *args, "-o", str(out)]) == 2
