@@ -54,8 +54,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rgbd2scene import atomic  # noqa: E402
 from rgbd2scene.capture.readers import read_depth, read_rgb  # noqa: E402
+from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.reconstruct.fill import border_band, fill_depth  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "rgbd_samples"

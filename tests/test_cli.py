@@ -112,3 +112,74 @@ def test_scene_path_errors_are_one_line_exit_2(mesh_folder, tmp_path, case):
     assert result.returncode == 2, result.stderr
     assert result.stderr.strip() == message
     assert not (tmp_path / "out" / "scene.json").exists()
+
+
+@pytest.fixture
+def capture_inputs(tmp_path):
+    """Files for the input-mode errors: a stereo pair of 64x48 images and calibrations, a trajectory."""
+    img = np.random.default_rng(1).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    for name in ("left.png", "right.png"):
+        cv2.imwrite(str(tmp_path / name), img)
+    calib = {"K_left": [[60, 0, 31.5], [0, 60, 23.5], [0, 0, 1]], "D_left": [0, 0, 0, 0, 0],
+             "K_right": [[60, 0, 31.5], [0, 60, 23.5], [0, 0, 1]], "D_right": [0, 0, 0, 0, 0],
+             "R": np.eye(3).tolist(), "T": [-0.005, 0, 0], "image_size": [64, 48]}
+    (tmp_path / "calib.json").write_text(json.dumps(calib))
+    (tmp_path / "calib_big.json").write_text(json.dumps({**calib, "image_size": [320, 240],
+                                                         "K_left": [[300, 0, 160], [0, 300, 120], [0, 0, 1]],
+                                                         "K_right": [[300, 0, 160], [0, 300, 120], [0, 0, 1]]}))
+    (tmp_path / "calib_bad.json").write_text(json.dumps({k: v for k, v in calib.items() if k != "R"}))
+    (tmp_path / "traj.txt").write_text("0.0 0 0 0 0 0 0 1\n1.0 0 0 0.01 0 0\n")
+    (tmp_path / "traj3.txt").write_text("".join(f"{t}.0 0 0 0 0 0 0 1\n" for t in range(3)))
+    return tmp_path
+
+
+RGB, DEPTH = str(BUNDLED_SAMPLE / "rgb.png"), str(BUNDLED_SAMPLE / "depth.png")
+
+
+@pytest.mark.parametrize("command", ["mesh", "scene"])
+@pytest.mark.parametrize("case, message", [
+    ("nothing", "--rgb and --depth"),
+    ("both_modes", "not both"),
+    ("stereo_missing_right", "missing --right"),
+    ("stereo_with_camera", "--camera do(es) not apply to a stereo frame"),
+    ("counts", "--rgb has 2 files but --depth has 1"),
+    ("poses_single_frame", "--poses needs several frames"),
+    ("bad_trajectory_line", "traj.txt: line 2: expected 8 numbers"),
+    ("missing_trajectory", "nope.txt: trajectory file not found"),
+    ("trajectory_count", "traj3.txt: 3 poses for 2 frames"),
+    ("bad_calibration", "calib_bad.json: bad stereo calibration: missing key(s) R"),
+    ("calibration_size", "the images are 64x48 but the calibration"),
+    ("missing_left", "left_nope.png: RGB image not found"),
+    ("depth_range", "--depth-range"),
+    ("voxel_size", "--voxel-size"),
+    ("fusion_option_on_stereo", "--voxel-size do(es) not apply to a stereo frame"),
+    ("stereo_option_on_rgbd", "--depth-range do(es) not apply to a single RGB-D frame"),
+])
+def test_capture_mode_errors_are_one_line_exit_2(capture_inputs, capsys, command, case, message):
+    d = capture_inputs
+    stereo = ["--left", str(d / "left.png"), "--right", str(d / "right.png"), "--stereo-calib", str(d / "calib.json")]
+    two = ["--rgb", RGB, RGB, "--depth", DEPTH, DEPTH, "--camera", str(BUNDLED_SAMPLE / "camera.json")]
+    args = {
+        "nothing": [],
+        "both_modes": [*stereo, "--rgb", RGB, "--depth", DEPTH],
+        "stereo_missing_right": stereo[:2] + stereo[4:],
+        "stereo_with_camera": [*stereo, "--camera", str(BUNDLED_SAMPLE / "camera.json")],
+        "counts": ["--rgb", RGB, RGB, "--depth", DEPTH],
+        "poses_single_frame": ["--rgb", RGB, "--depth", DEPTH, "--poses", str(d / "traj.txt")],
+        "bad_trajectory_line": [*two, "--poses", str(d / "traj.txt")],
+        "missing_trajectory": [*two, "--poses", str(d / "nope.txt")],
+        "trajectory_count": [*two, "--poses", str(d / "traj3.txt")],
+        "bad_calibration": [*stereo[:5], str(d / "calib_bad.json")],
+        "calibration_size": [*stereo[:5], str(d / "calib_big.json")],
+        "missing_left": ["--left", str(d / "left_nope.png"), *stereo[2:]],
+        "depth_range": [*stereo, "--depth-range", "0.5", "0.1"],
+        "voxel_size": [*two, "--voxel-size", "-1"],
+        "fusion_option_on_stereo": [*stereo, "--voxel-size", "0.001"],
+        "stereo_option_on_rgbd": ["--rgb", RGB, "--depth", DEPTH, "--depth-range", "0.1", "0.5"],
+    }[case]
+    out = d / "out"
+    assert main([command, *args, "-o", str(out)]) == 2
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    assert message in lines[0], lines[0]
+    assert not (out / "scene.json").exists()

@@ -25,7 +25,13 @@ MIN_MEDIAN_DEPTH, MAX_MEDIAN_DEPTH = 0.01, 20.0
 
 @dataclass
 class Capture:
-    """One registered RGB-D frame: uint8 RGB (H, W, 3) and float32 depth in metres (NaN = hole)."""
+    """One registered RGB-D frame: uint8 RGB (H, W, 3) and float32 depth in metres (NaN = hole).
+
+    ``T_world_capture`` (4x4) is the pose of the camera the depth is measured in, in the world frame of
+    the reconstruction (identity for a plain RGB-D capture; the rectifying rotation undone for a stereo
+    frame). ``image_mask`` (bool (H, W), None = every pixel) marks the pixels that hold image data (a
+    rectified image has empty margins); nothing outside it is meshed.
+    """
 
     rgb: np.ndarray
     depth: np.ndarray
@@ -35,17 +41,27 @@ class Capture:
     depth_format: str = "npy"
     depth_scale: float | None = None
     info: dict = field(default_factory=dict)
+    T_world_capture: np.ndarray = field(default_factory=lambda: np.eye(4))
+    image_mask: np.ndarray | None = None
 
     @property
     def hole_mask(self) -> np.ndarray:
         return ~np.isfinite(self.depth)
 
+    @property
+    def posed(self) -> bool:
+        """True when the capture camera is not the world frame."""
+        return not np.array_equal(self.T_world_capture, np.eye(4))
+
     def describe(self) -> dict:
-        return {
+        record = {
             "rgb": self.rgb_path, "depth": self.depth_path, "depth_format": self.depth_format,
             "depth_scale": self.depth_scale, "width": self.intrinsics.width,
             "height": self.intrinsics.height, "intrinsics": self.intrinsics.to_dict(), **self.info,
         }
+        if self.posed:
+            record["T_world_capture"] = np.asarray(self.T_world_capture).tolist()
+        return record
 
 
 def read_rgb(path: str | Path) -> np.ndarray:

@@ -6,9 +6,13 @@ Writing the results is the mesh stage's job (``rgbd2scene.stages.mesh``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from rgbd2scene.capture.readers import Capture
+from rgbd2scene.capture.stereo import STEREO_SMOOTH_ITERATIONS
+from rgbd2scene.conventions import transform_points
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import option, to_record
 from rgbd2scene.reconstruct.fill import FILL_METHODS, FillResult, fill_depth
@@ -21,15 +25,17 @@ from rgbd2scene.reconstruct.smooth import smooth_mesh
 class MeshOptions:
     """Every setting of the reconstruction stage (CLI flags, batch keys, the record in scene.json)."""
 
-    fill: str = option("auto", "hole filling: auto, inpaint, colorization, biharmonic, background, none",
-                       choices=FILL_METHODS)
+    fill: str | None = option(None, "hole filling: auto, inpaint, colorization, biharmonic, background, none "
+                              "(default auto; none when fusing frames, whose holes the other frames fill)",
+                              choices=FILL_METHODS)
     max_relative_jump: float = option(0.03, "drop triangles whose relative depth jump exceeds this",
                                       flag="--max-jump")
     max_grazing_deg: float = option(85.0, "drop triangles seen more obliquely than this many degrees",
                                     flag="--max-grazing")
-    smooth: str = option("ray", "smoothing: ray (keeps texture registered), taubin, corrective, none",
-                         choices=SMOOTH_METHODS)
-    smooth_iterations: int = option(10, "smoothing strength")
+    smooth: str | None = option(None, "smoothing: ray (keeps texture registered), taubin, corrective, none "
+                                "(default ray; none when fusing frames)", choices=SMOOTH_METHODS)
+    smooth_iterations: int | None = option(None, "smoothing strength (default 10; 30 for a stereo frame, whose "
+                                           "depth is rougher)")
     overview: bool = option(True, "skip overview.png")
 
     def to_dict(self) -> dict:
@@ -38,20 +44,42 @@ class MeshOptions:
 
 @dataclass
 class Reconstruction:
+    """A reconstruction and its record; ``sections`` are further scene.json sections (e.g. ``fusion``)."""
+
     capture: Capture
     options: MeshOptions
     filled: FillResult
     mesh: Mesh
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    sections: dict = field(default_factory=dict)
+
+
+def restrict_to_image(filled: FillResult, image_mask: np.ndarray) -> FillResult:
+    """The fill result with NaN outside ``image_mask`` (pixels without image data are never meshed)."""
+    depth = np.where(image_mask, filled.depth, np.nan).astype(np.float32)
+    stats = {**filled.stats, "outside_image_fraction": float(np.mean(~image_mask))}
+    return replace(filled, depth=depth, filled=filled.filled & image_mask, stats=stats)
 
 
 def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconstruction:
-    """Fill holes, back-project into a grid mesh without curtains, and smooth along the viewing rays."""
+    """Fill holes, back-project into a grid mesh without curtains, and smooth along the viewing rays.
+
+    The mesh is built in the capture camera's frame and then placed in the world frame by
+    ``capture.T_world_capture``; pixels outside ``capture.image_mask`` stay empty.
+    """
     options = options or MeshOptions()
+    stereo = capture.depth_format == "stereo"
+    options = replace(options, fill=options.fill or "auto", smooth=options.smooth or "ray",
+                      smooth_iterations=options.smooth_iterations if options.smooth_iterations is not None
+                      else STEREO_SMOOTH_ITERATIONS if stereo else 10)
     timings = {}
     t0 = time.perf_counter()
-    filled = fill_depth(capture.depth, capture.rgb, method=options.fill)
+    # A rectified image's empty margins are no sensor border band: extrapolating into them would paint a
+    # frame of made-up depth along the margins.
+    filled = fill_depth(capture.depth, capture.rgb, method=options.fill, fill_border=capture.image_mask is None)
+    if capture.image_mask is not None:
+        filled = restrict_to_image(filled, capture.image_mask)
     timings["fill_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -64,6 +92,8 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
 
     t0 = time.perf_counter()
     mesh, smooth_stats = smooth_mesh(mesh, method=options.smooth, iterations=options.smooth_iterations)
+    if capture.posed:
+        mesh.vertices = transform_points(capture.T_world_capture, mesh.vertices)
     timings["smooth_s"] = time.perf_counter() - t0
     timings["compute_s"] = timings["fill_s"] + timings["mesh_s"] + timings["smooth_s"]
     stats = {"fill": filled.stats, "mesh": mesh_stats, "smooth": smooth_stats}

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.conventions import CONVENTIONS_VERSION
+from rgbd2scene.conventions import CONVENTIONS_VERSION, invert_pose, transform_points
 from rgbd2scene.files.atomic import ensure_output_dir, write_json, write_npy
 from rgbd2scene.files.meshio import write_ply, write_textured_obj
 from rgbd2scene.reconstruct.pipeline import Reconstruction
@@ -22,6 +22,11 @@ from rgbd2scene.versions import software_versions
 def scene_record(recon: Reconstruction) -> dict:
     """The reconstruction part of scene.json: inputs, intrinsics, scale, settings, statistics, timings."""
     fill = recon.filled
+    textured = recon.mesh.texture is not None and recon.mesh.uvs is not None
+    files = {"mesh": folder.MESH, "depth_filled": folder.DEPTH_FILLED, "textured_mesh": folder.TEXTURED_MESH,
+             "texture": folder.TEXTURE, "overview": folder.OVERVIEW}
+    if not textured:
+        files.pop("texture")
     return {
         "conventions_version": CONVENTIONS_VERSION,
         "software": software_versions(),
@@ -34,8 +39,8 @@ def scene_record(recon: Reconstruction) -> dict:
         "smooth": {"method": recon.options.smooth, "iterations": recon.options.smooth_iterations,
                    "stats": recon.stats["smooth"]},
         "timings": recon.timings,
-        "files": {"mesh": folder.MESH, "depth_filled": folder.DEPTH_FILLED, "textured_mesh": folder.TEXTURED_MESH,
-                  "texture": folder.TEXTURE, "overview": folder.OVERVIEW},
+        "files": files,
+        **recon.sections,
     }
 
 
@@ -57,7 +62,10 @@ def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool
 
         K = recon.capture.intrinsics.K
         h, w = depth_filled.shape
-        mesh_img = render_mesh_image(recon.mesh.vertices, recon.mesh.triangles, recon.mesh.vertex_colors, K, w, h)
+        vertices = recon.mesh.vertices  # the overview looks from near the capture camera, in its frame
+        if recon.capture.posed:
+            vertices = transform_points(invert_pose(recon.capture.T_world_capture), vertices)
+        mesh_img = render_mesh_image(vertices, recon.mesh.triangles, recon.mesh.vertex_colors, K, w, h)
         write_overview(out / folder.OVERVIEW, recon.capture.rgb, recon.capture.depth, depth_filled, mesh_img,
                        title=Path(recon.capture.rgb_path).name)
     recon.timings["write_s"] = time.perf_counter() - t0
