@@ -50,13 +50,14 @@ import numpy as np
 from mathutils import Matrix
 from scipy.spatial.transform import Rotation
 
+from render.materials import OBJECT_MATERIALS
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.scene.deformation import Deformation, rest_normals
-from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
+from rgbd2scene.scene.model import Light, Material, SceneDescription, SceneObject
 from rgbd2scene.scene.paths import CameraPath
 
 TISSUE = "Tissue"
@@ -117,7 +118,8 @@ def build_mesh_object(scene, obj: SceneObject, scene_dir: Path, description: Sce
         name = TISSUE if tissue else f"{obj.name}.{part.name}"
         if image_file is not None:
             image = add_texture(image_file, name=TEXTURE if tissue else f"{name}.texture")
-        bobj = add_tissue(mesh, make_material(part.material.kind, image), part.id, name=name)
+        material = make_material(part.material.kind, image, part.material, mesh.vertex_colors is not None)
+        bobj = add_tissue(mesh, material, part.id, name=name)
         if part.poses is not None:
             key_poses(scene, bobj, part.poses)
         if part.deformation is not None:
@@ -153,7 +155,7 @@ def key_deformation(bobj, mesh, deformation: Deformation, frames: int, fps: floa
 
 
 #: Object kind (``SceneObject.kind``) -> the function that builds it into the scene.
-BUILDERS = {"tissue": build_mesh_object, "mesh": build_mesh_object}
+BUILDERS = {"tissue": build_mesh_object, "mesh": build_mesh_object, "instrument": build_mesh_object}
 
 
 # --- render settings -------------------------------------------------------------------------------
@@ -220,11 +222,15 @@ def add_texture(texture: np.ndarray, name: str = TEXTURE):
     return image
 
 
-def make_material(kind: str, image=None):
+def make_material(kind: str, image=None, material: Material | None = None, vertex_colors: bool = True):
     """"as_captured": unlit, the texture's colours exactly; "wet_tissue": glossy, light-dependent tissue.
 
-    Without ``image`` the colour comes from the mesh's vertex colours (attribute "Col").
+    Without ``image`` the colour comes from the mesh's vertex colours (attribute "Col"). Object looks
+    (``metal``, ``dark_plastic``, ``color``) are built by ``render.materials.OBJECT_MATERIALS`` from the part's
+    ``material`` (its colour) and whether the mesh has ``vertex_colors``.
     """
+    if kind in OBJECT_MATERIALS:
+        return OBJECT_MATERIALS[kind](material or Material(kind), image, vertex_colors)
     mat = bpy.data.materials.new(kind)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
     nodes.clear()
@@ -253,7 +259,8 @@ def make_material(kind: str, image=None):
             shader.inputs[key].default_value = value
         links.new(shader.outputs["BSDF"], out.inputs["Surface"])
     else:
-        raise ValueError(f"unknown material {kind!r}; choose 'as_captured' or 'wet_tissue'")
+        raise ValueError(f"unknown material {kind!r}; choose one of as_captured, wet_tissue, "
+                         f"{', '.join(OBJECT_MATERIALS)}")
     return mat
 
 

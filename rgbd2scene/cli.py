@@ -245,11 +245,12 @@ def cmd_scene(args) -> int:
     from rgbd2scene.files.atomic import ensure_output_dir
     from rgbd2scene.options import from_args
     from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
-    from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder
+    from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder, scene_config
 
     t0 = time.perf_counter()
-    out = ensure_output_dir(args.output)
     options = from_args(SceneOptions, args)
+    config = scene_config(options)  # a bad configuration fails before the reconstruction
+    out = ensure_output_dir(args.output)
     if args.mesh_dir:
         mesh, record = load_mesh_folder(args.mesh_dir, out)
     elif _has_capture_input(args):
@@ -259,11 +260,15 @@ def cmd_scene(args) -> int:
     else:
         raise UserError("scene: give a capture (--rgb and --depth, or --left, --right and --stereo-calib) or "
                         "--mesh-dir (a mesh folder)")
-    record = build_scene_folder(out, mesh, record, options)
+    record = build_scene_folder(out, mesh, record, options, config=config)
     cov = record["coverage"]
     print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
           f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {time.perf_counter() - t0:.1f}s -> "
           f"{out}/scene.blend")
+    for item in record.get("objects", {}).get("instruments", []):
+        print(f"instrument {item['name']!r} (ids {item['ids'][0]}-{item['ids'][-1]}): tip in both views in "
+              f"{100 * item['in_view_fraction']:.0f} % of the frames, closest to the tissue "
+              f"{1e3 * item['clearance_min_m']:.1f} mm")
     return 0
 
 

@@ -6,7 +6,7 @@ SCENE/scene.blend         the Blender scene
 SCENE/mesh.ply            the tissue surface (binary PLY, vertex colours, UVs, metres, world frame)
 SCENE/depth_filled.npy    the capture depth the mesh was built from
 SCENE/mesh.obj/.mtl, mesh_texture.png, overview.png
-SCENE/objects/<id>.ply    each rigid object part, in its own frame
+SCENE/objects/<id>.ply    each rigid object part, in its own frame (and <id>_texture.png if textured)
 ```
 """
 
@@ -27,3 +27,8 @@ MESH_FOLDER_FILES = (MESH, DEPTH_FILLED, TEXTURED_MESH, MATERIAL_LIBRARY, TEXTUR
 def object_geometry(part_id: int) -> str:
     """Scene-folder path of the geometry of the object part with instance id ``part_id``."""
     return f"{OBJECTS_DIR}/{int(part_id)}.ply"
+
+
+def object_texture(part_id: int) -> str:
+    """Scene-folder path of the texture image of the object part ``part_id`` (mapped by its PLY's UVs)."""
+    return f"{OBJECTS_DIR}/{int(part_id)}_texture.png"

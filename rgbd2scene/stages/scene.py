@@ -22,9 +22,10 @@ from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
+from rgbd2scene.scene.config import ConfigError, SceneConfig, load_scene_config, parse_scene_config
 from rgbd2scene.scene.deformation import KINDS as DEFORMATIONS
-from rgbd2scene.scene.deformation import Deformation
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
+from rgbd2scene.scene.objects.assemble import Tissue, add_objects
 from rgbd2scene.scene.paths import (
     DEFAULT_STANDOFF,
     PATH_GENERATORS,
@@ -62,6 +63,10 @@ class SceneOptions:
     light_power_w: float = option(0.05, "light power, watts", flag="--light-power")
     deform: str = option("none", "tissue motion: breathing, heartbeat (periodic displacement along the surface "
                          "normal) or none", choices=DEFORMATIONS)
+    instrument: bool = option(False, "add the built-in instrument (shaft, wrist, two jaws) with its default motion "
+                              "(unless the scene configuration has one)")
+    scene_config: str | None = option(None, "scene configuration file (TOML or YAML): instruments, meshes, their "
+                                      "motions, tracked frames, deformation", metavar="FILE")
 
     def rig(self) -> StereoRig:
         """The stereo rig; :class:`OptionError` naming the field when a value is implausible."""
@@ -74,12 +79,31 @@ class SceneOptions:
         return StereoRig(intr, self.baseline)
 
 
-def make_description(vertices: np.ndarray, triangles: np.ndarray, options: SceneOptions, rc=None,
-                     texture: str | None = folder.TEXTURE) -> SceneDescription:
-    """The scene model: rig, path (generated over the mesh or read from a path file), light, and the tissue
-    (``mesh.ply`` with ``texture``, or its vertex colours when None).
+def scene_config(options: SceneOptions) -> SceneConfig | None:
+    """The validated scene configuration of ``--scene-config`` (with ``--instrument``'s instrument), or of
+    ``--instrument`` alone; None without either. :class:`UserError` naming the file and the key."""
+    if options.scene_config:
+        try:
+            return load_scene_config(options.scene_config, default_instrument=options.instrument)
+        except ConfigError as exc:
+            raise UserError(f"{options.scene_config}: {exc}") from None
+    if options.instrument:
+        return parse_scene_config({}, Path("."), default_instrument=True)
+    return None
 
-    ``rc`` is a ready ``raycast.Raycaster`` of the mesh (built here if not given).
+
+def _config_error(config: SceneConfig, exc: ConfigError) -> UserError:
+    return UserError(f"{config.path}: {exc}" if config.path is not None else str(exc))
+
+
+def make_description(vertices: np.ndarray, triangles: np.ndarray, options: SceneOptions, rc=None,
+                     texture: str | None = folder.TEXTURE, config: SceneConfig | None = None) -> SceneDescription:
+    """The scene model: rig, path (generated over the mesh or read from a path file), light, and the tissue
+    (``mesh.ply`` with ``texture``, or its vertex colours when None) with its deformation (``--deform``'s
+    preset, or the configuration's, with the configuration's overrides).
+
+    ``rc`` is a ready ``raycast.Raycaster`` of the mesh (built here if not given). The configuration's objects
+    are added by :func:`build_scene_folder` (they write files).
     """
     if options.material not in MATERIALS:
         raise UserError(f"--material: unknown material {options.material!r}; choose one of {', '.join(MATERIALS)}")
@@ -102,10 +126,14 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
             raise UserError(f"path: {exc}") from None
     light = Light(kind=options.light, power_w=options.light_power_w)
     tissue = tissue_object(options.material, folder.MESH, texture)
-    if options.deform != "none":
+    config = config or SceneConfig()
+    if (config.deformation_preset or options.deform) != "none":
         # centred on the surface the camera looks at in the middle of the path
         centre = _view_target(rc if rc is not None else raycaster(vertices, triangles), path)
-        tissue.parts[0].deformation = Deformation.preset(options.deform, centre=tuple(centre))
+        try:
+            tissue.parts[0].deformation = config.deformation(options.deform, centre=tuple(centre))
+        except ConfigError as exc:
+            raise _config_error(config, exc) from None
     return SceneDescription(rig, path, light, [tissue])
 
 
@@ -118,18 +146,34 @@ def _view_target(rc, path: CameraPath) -> np.ndarray:
     return np.median(rc.vertices, axis=0)
 
 
-def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions, python: str | None = None) -> dict:
+def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions, python: str | None = None,
+                       config: SceneConfig | None = None) -> dict:
     """Build SCENE/scene.blend for ``mesh`` (its files already in out_dir) and write scene.json last.
 
-    Blender runs in a fresh worker process (:func:`rgbd2scene.stages.blender.run_task`), which reads the
-    geometry and texture files the scene model names.
+    The objects of the scene configuration (``config``, else read from ``options``; see :func:`scene_config`)
+    are added with their geometry in ``SCENE/objects/``. Blender runs in a fresh worker process
+    (:func:`rgbd2scene.stages.blender.run_task`), which reads the geometry and texture files the scene model
+    names.
     """
     t0 = time.perf_counter()
+    if config is None:
+        config = scene_config(options)
     rc = raycaster(mesh.vertices, mesh.triangles)
     texture = folder.TEXTURE if (out_dir / folder.TEXTURE).is_file() and mesh.uvs is not None else None
-    desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc, texture=texture)
+    desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc, texture=texture, config=config)
     coverage = path_coverage(mesh.vertices, mesh.triangles, desc.rig, desc.path, scale=0.5, rc=rc)
     timings = {"path_s": time.perf_counter() - t0}
+    objects_record = None
+    if config is not None:
+        t0 = time.perf_counter()
+        intrinsics = record.get("capture", {}).get("intrinsics")
+        tissue = Tissue(mesh.vertices, mesh.triangles, rc,
+                        None if intrinsics is None else Intrinsics.from_dict(intrinsics).K)
+        try:
+            desc, objects_record = add_objects(desc, tissue, config, out_dir, seed=options.seed)
+        except ConfigError as exc:
+            raise _config_error(config, exc) from None
+        timings["objects_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     blend = out_dir.resolve() / folder.SCENE_BLEND
     run_task(Task("build_scene", str(out_dir.resolve()), desc.to_dict(), blend=str(blend)), python=python,
@@ -140,6 +184,8 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
     record["scene_options"] = to_record(options)
     record["coverage"] = {"min": float(coverage.min()), "mean": float(coverage.mean()),
                           "per_frame_left_right": coverage.round(4).tolist(), "check_scale": 0.5}
+    if objects_record is not None:
+        record["objects"] = objects_record
     record["blend"] = folder.SCENE_BLEND
     record.setdefault("timings", {}).update(timings)
     write_json(out_dir / folder.SCENE_JSON, record)

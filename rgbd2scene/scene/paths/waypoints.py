@@ -32,7 +32,9 @@ def _vector(value, where: str, what: str) -> np.ndarray:
     return a
 
 
-def _pose(value, where: str, pose_key: str) -> np.ndarray:
+def pose_matrix(value, where: str, pose_key: str = "pose") -> np.ndarray:
+    """``value`` as a rigid 4x4 pose (float64): finite, last row [0, 0, 0, 1], a proper rotation
+    (orthonormal to 1e-4, det +1); ``ValueError`` starting with ``where`` otherwise."""
     try:
         T = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -50,7 +52,7 @@ def _pose(value, where: str, pose_key: str) -> np.ndarray:
 def _parse_waypoint(w, where: str, pose_key: str) -> dict:
     """Normalise one waypoint to {"T": 4x4} or {"position", "look_at", "up"}, plus optional "frame"."""
     if isinstance(w, np.ndarray) or (isinstance(w, list | tuple) and len(w) == 4):
-        return {"T": _pose(w, where, pose_key)}
+        return {"T": pose_matrix(w, where, pose_key)}
     if not isinstance(w, dict):
         _fail(where, f"a waypoint must be an object with position/look_at or {pose_key}")
     out: dict = {}
@@ -62,7 +64,7 @@ def _parse_waypoint(w, where: str, pose_key: str) -> dict:
     if pose_key in w:
         if "position" in w or "look_at" in w:
             _fail(where, f"give either {pose_key} or position/look_at, not both")
-        out["T"] = _pose(w[pose_key], where, pose_key)
+        out["T"] = pose_matrix(w[pose_key], where, pose_key)
         return out
     if "position" not in w or "look_at" not in w:
         missing = [k for k in ("position", "look_at") if k not in w]

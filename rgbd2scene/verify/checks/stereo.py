@@ -2,8 +2,10 @@
 
 A left pixel (u, v) sees what the right pixel (u - d, v) sees (and a right pixel (u, v) what the left pixel
 (u + d, v) sees). The other eye's disparity, sampled there, must equal this eye's where the point is not
-occluded in the other eye; it must never be smaller (the other eye would see through the surface). Samples
-that straddle a depth edge in the other eye, or leave its image, are not compared.
+occluded in the other eye; it must never be smaller (the other eye would see through the surface) than both
+samples around the matching position: between two pixel centres a convex surface (an instrument's shaft near
+its silhouette) bulges towards the camera, so the interpolated disparity there lies behind it. Samples that
+straddle a depth edge in the other eye, or leave its image, are not compared.
 """
 
 from __future__ import annotations
@@ -82,12 +84,13 @@ def lr_consistency(z_src: np.ndarray, z_dst: np.ndarray, fx: float, baseline: fl
     with np.errstate(invalid="ignore"):
         ok &= sampled & (np.abs(g0 - g1) <= tol.lr_jump_px)
         diff = (1 - a) * g0 + a * g1 - d_src  # > 0: the other eye sees something closer (occlusion)
+        behind = np.maximum(g0, g1) - d_src < -tol.lr_threshold_px  # further than both samples
     n = int(ok.sum())
     result = Consistency(float("nan"), float("nan"), float("nan"), 0)
     if n:
         compared = diff[ok]
         occluded = compared > tol.lr_threshold_px
-        further = compared < -tol.lr_threshold_px
+        further = behind[ok]
         visible = np.abs(compared[~occluded])
         result = Consistency(float(further.sum() / n), float(np.median(visible)) if visible.size else float("nan"),
                              float(occluded.sum() / n), n)
