@@ -60,7 +60,8 @@ def legend_panel(entries: list[tuple[int, str]], width: int, height: int) -> np.
     """A panel listing ``(id, text)`` rows with the id's colour swatch (as :func:`colorize_ids` paints it)."""
     panel = np.full((height, width, 3), BACKGROUND, np.uint8)
     row = max(12, min(20, (height - 30) // max(len(entries), 1)))
-    scale = row / 36.0
+    widest = max((cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 1.0, 1)[0][0] for _, text in entries), default=1)
+    scale = min(row / 36.0, (width - 24 - row) / widest)  # every line fits the panel
     for k, (i, text) in enumerate(entries):
         y = 30 + k * row
         if y + row > height:
