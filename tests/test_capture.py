@@ -110,3 +110,13 @@ def test_real_captures_parse_to_plausible_ranges(shared_samples):
     cap = load_capture(s / "tum_office_frame_open3d/TUM_color.png", s / "tum_office_frame_open3d/TUM_depth.png",
                        preset("primesense"), depth_scale=5000)
     assert cap.rgb.shape == (480, 640, 3)
+
+
+@pytest.mark.parametrize("channels", [3, 4])
+def test_colour_depth_is_refused_even_with_equal_channels(tmp_path, channels):
+    grey = np.full((48, 64), 0.6, np.float32)
+    np.save(tmp_path / "depth.npy", np.dstack([grey] * channels))
+    with pytest.raises(UserError, match=f"depth.npy: depth must be a single-channel image, got {channels} channels"):
+        read_depth(tmp_path / "depth.npy")
+    np.save(tmp_path / "one.npy", grey[..., None])  # an explicit single channel is fine
+    assert read_depth(tmp_path / "one.npy")[0].shape == (48, 64)
