@@ -42,6 +42,9 @@ def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None
     m = p.add_argument_group("reconstruction")
     m.add_argument("--fill", default="auto", help="hole filling: auto, inpaint, colorization, biharmonic, "
                    "background, none (default auto)")
+    m.add_argument("--sensor", help="depth sensor, for where occlusion shadows fall: kinect_v1 (structured light), "
+                   "kinect_v2, azure_kinect (time of flight: no shadows), realsense (active stereo), none "
+                   "(default: the preset's sensor; kinect_v1 for every preset and for --camera)")
     m.add_argument("--max-jump", type=float, default=0.03,
                    help="drop triangles whose relative depth jump exceeds this (default 0.03)")
     m.add_argument("--max-grazing", type=float, default=85.0,
@@ -68,12 +71,19 @@ def _load_capture(args):
     return load_capture(args.rgb, args.depth, intr, depth_scale=scale, depth_format=args.depth_format)
 
 
+def _sensor_name(args) -> str:
+    """--sensor, else the sensor of the preset (of the default preset with --camera)."""
+    from rgbd2scene.capture.camera import PRESET_SENSOR
+
+    return args.sensor or PRESET_SENSOR.get((args.preset or "primesense").lower(), "kinect_v1")
+
+
 def _mesh_options(args):
     from rgbd2scene.reconstruct.pipeline import MeshOptions
 
-    return MeshOptions(fill=args.fill, max_relative_jump=args.max_jump, max_grazing_deg=args.max_grazing,
-                       smooth=args.smooth, smooth_iterations=args.smooth_iterations,
-                       overview=not args.no_overview)
+    return MeshOptions(fill=args.fill, sensor=_sensor_name(args), max_relative_jump=args.max_jump,
+                       max_grazing_deg=args.max_grazing, smooth=args.smooth,
+                       smooth_iterations=args.smooth_iterations, overview=not args.no_overview)
 
 
 def cmd_mesh(args) -> int:

@@ -9,6 +9,7 @@ import time
 from dataclasses import dataclass, field
 
 from rgbd2scene.capture.readers import Capture
+from rgbd2scene.capture.sensors import get_sensor
 from rgbd2scene.errors import UserError
 from rgbd2scene.reconstruct.fill import FillResult, fill_depth
 from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
@@ -20,6 +21,7 @@ class MeshOptions:
     """Every setting of the reconstruction stage (recorded in scene.json)."""
 
     fill: str = "auto"
+    sensor: str = "kinect_v1"
     max_relative_jump: float = 0.03
     max_grazing_deg: float = 85.0
     smooth: str = "ray"
@@ -45,7 +47,15 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     options = options or MeshOptions()
     timings = {}
     t0 = time.perf_counter()
-    filled = fill_depth(capture.depth, capture.rgb, method=options.fill)
+    try:
+        sensor = get_sensor(options.sensor)
+    except ValueError as exc:
+        raise UserError(f"--sensor: {exc}") from None
+    try:
+        filled = fill_depth(capture.depth, capture.rgb, method=options.fill, sensor=sensor,
+                            fx=capture.intrinsics.fx)
+    except ValueError as exc:
+        raise UserError(f"--fill: {exc}") from None
     timings["fill_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
