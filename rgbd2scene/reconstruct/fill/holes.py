@@ -4,12 +4,14 @@ Which pixels are filled (:func:`classify_holes`)
 ------------------------------------------------
 A hole pixel is filled unless it lies *outside the captured surface*; size plays no part. Three kinds:
 
-* **Border band** (``HoleMap.band``): registered Kinect-style depth leaves an invalid band along the
-  image edges (8-47 px wide in the TUM, NYU, SUN and Redwood samples). A hole pixel is in the band when,
-  along its row (for the left and right edges) or its column (top and bottom), the run of holes from
-  the edge to the first valid pixel is at most ``border_width`` px (default 10 % of the shorter side,
-  48 px at 640x480: above the widest band seen). The surface plainly reaches the band; the policy extends
-  it to the edge.
+* **Border band** (``HoleMap.band``): registered Kinect-style depth leaves an invalid band of even
+  width along the image edges (8-47 px wide in the TUM, NYU, SUN and Redwood samples). Along each row
+  (for the left and right edges) or column (top and bottom), the run of holes from the edge to the
+  first valid pixel is measured; an edge has a band when at least half of its runs are at most
+  ``border_width`` px long (default 10 % of the shorter side, 48 px at 640x480: above the widest band
+  seen), and the band is the runs up to 1.5 times their median plus 2 px: a strip of even width, so
+  that a blob or a wider hole at the edge is an interior hole, filled from its whole boundary. The
+  surface plainly reaches the band; the policy extends it to the edge.
 * **Outside** (``HoleMap.outside``), two ways:
 
   1. *Open*: the pixel is not enclosed by the surface (valid pixels and the band). Sixteen rays from
@@ -165,9 +167,13 @@ def classify_holes(
 
 
 def border_band(valid: np.ndarray, width: int, coverage: float = 0.5) -> np.ndarray:
-    """Hole pixels between an image edge and the first valid pixel of their row (left and right edges)
-    or column (top and bottom), where that run of holes is at most ``width`` px long, on the edges where
-    this holds for at least ``coverage`` of the rows (columns)."""
+    """The sensor's band of holes along the image edges.
+
+    For each edge, the run of holes from the edge to the first valid pixel of each row (left and right
+    edges) or column (top and bottom) is measured. An edge has a band when at least ``coverage`` of its
+    runs are at most ``width`` px long; its band is then the runs no longer than 1.5 times their median
+    plus 2 px (a strip of even width: a blob or a wider hole at the edge is no part of it).
+    """
     band = np.zeros(valid.shape, dtype=bool)
     if width <= 0:
         return band
@@ -175,13 +181,14 @@ def border_band(valid: np.ndarray, width: int, coverage: float = 0.5) -> np.ndar
         for transpose in (False, True):
             v = valid.T if transpose else valid
             v = v[:, ::-1] if flip else v
-            first = np.where(v.any(axis=1), v.argmax(axis=1), v.shape[1])
-            thin = first <= width
+            run = np.where(v.any(axis=1), v.argmax(axis=1), v.shape[1])
+            thin = run <= width
             if thin.mean() < coverage:
                 continue
-            run = np.arange(v.shape[1])[None, :] < np.where(thin, first, 0)[:, None]
-            run = run[:, ::-1] if flip else run
-            band |= run.T if transpose else run
+            strip = run <= min(width, 1.5 * np.median(run[thin]) + 2)
+            cells = np.arange(v.shape[1])[None, :] < np.where(strip, run, 0)[:, None]
+            cells = cells[:, ::-1] if flip else cells
+            band |= cells.T if transpose else cells
     return band
 
 
