@@ -164,11 +164,11 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts = _auto(work, rgb, interior, step, fx, sensor.shadow_baselines(), small_radius)
+        out, counts = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
-    rest = band | (interior & np.isnan(out)) if method != "none" and band.any() else None
-    if rest is not None:
+    rest = todo & np.isnan(out) if method != "none" and band.any() else None
+    if rest is not None and rest.any():
         out[rest] = fill_biharmonic(out, rest)[rest]
     out[valid] = depth[valid]  # valid pixels are never changed
     filled = holes.holes & np.isfinite(out)
@@ -192,9 +192,10 @@ def fill_depth(
     return FillResult(out.astype(np.float32), filled, used, settings, stats)
 
 
-def _auto(work, rgb, todo, step, fx, baselines, small_radius):
-    """``auto`` (module docstring): shadow rows -> their far end; holes with a step or wide ones -> mean
-    of colorization and biharmonic; narrow step-free holes -> harmonic.
+def _auto(work, rgb, todo, band, step, fx, baselines, small_radius):
+    """``auto`` (module docstring): shadow rows (the band's too) -> their far end; interior holes with a
+    step or wide ones -> mean of colorization and biharmonic; narrow step-free holes -> harmonic. The
+    rest of the band is left to the caller.
 
     Returns the filled depth and the number of pixels each method filled.
     """
@@ -205,11 +206,12 @@ def _auto(work, rgb, todo, step, fx, baselines, small_radius):
     if shadow.any():
         out[shadow] = fill_row_background(work, shadow)[shadow]
         counts["background"] = int(shadow.sum())
-    rest = todo & ~shadow
-    labels, n = components(todo)
+    interior = todo & ~band
+    rest = interior & ~shadow
+    labels, n = components(interior)
     wide = np.zeros(n + 1, dtype=bool)
     wide[labels[runs.pixels(work.shape)]] = True
-    inscribed = cv2.distanceTransform(todo.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inscribed = cv2.distanceTransform(interior.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     wide[labels[inscribed > small_radius]] = True
     wide[0] = False
     guided = wide[labels] & rest
