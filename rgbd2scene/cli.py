@@ -216,7 +216,19 @@ def _mesh_options(args, mode: str):
     options = from_args(MeshOptions, args)
     fusion = mode == "fusion"
     return replace(options, fill=options.fill or ("none" if fusion else "auto"),
-                   smooth=options.smooth or ("none" if fusion else "ray"))
+                   smooth=options.smooth or ("none" if fusion else "ray"), sensor=_sensor_name(args, mode))
+
+
+def _sensor_name(args, mode: str) -> str:
+    """--sensor, else the preset's sensor (the default preset's with --camera); none for a stereo frame (its
+    depth comes from matching two images, not from a projector)."""
+    from rgbd2scene.capture.camera import PRESET_SENSOR
+
+    if args.sensor:
+        return args.sensor
+    if mode == "stereo":
+        return "none"
+    return PRESET_SENSOR.get((args.preset or "primesense").lower(), "kinect_v1")
 
 
 def cmd_mesh(args) -> int:

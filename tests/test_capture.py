@@ -43,11 +43,14 @@ def test_npy_and_exr_metres(tmp_path):
     assert fmt == "npy" and scale is None and np.isnan(d[3, 3]) and np.isclose(d[0, 0], 0.05)
     import OpenEXR
 
-    for channels in ({"Y": z}, {"Z": z}, {"R": z, "G": z, "B": z}):  # grey (as OpenCV writes it), depth, RGB
-        header = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION}
+    header = {"type": OpenEXR.scanlineimage, "compression": OpenEXR.ZIP_COMPRESSION}
+    for channels in ({"Y": z}, {"Z": z}):  # grey (as OpenCV writes it), a depth channel
         OpenEXR.File(header, channels).write(str(tmp_path / "d.exr"))
         d2, fmt2, _ = read_depth(tmp_path / "d.exr")
         assert fmt2 == "exr" and np.allclose(d, d2, equal_nan=True)
+    OpenEXR.File(header, {"R": z, "G": z, "B": z}).write(str(tmp_path / "d.exr"))  # a colour EXR given as depth
+    with pytest.raises(UserError, match="single-channel"):
+        read_depth(tmp_path / "d.exr")
 
 
 @pytest.mark.parametrize(
@@ -114,3 +117,13 @@ def test_real_captures_parse_to_plausible_ranges(shared_samples):
     cap = load_capture(s / "tum_office_frame_open3d/TUM_color.png", s / "tum_office_frame_open3d/TUM_depth.png",
                        preset("primesense"), depth_scale=5000)
     assert cap.rgb.shape == (480, 640, 3)
+
+
+@pytest.mark.parametrize("channels", [3, 4])
+def test_colour_depth_is_refused_even_with_equal_channels(tmp_path, channels):
+    grey = np.full((48, 64), 0.6, np.float32)
+    np.save(tmp_path / "depth.npy", np.dstack([grey] * channels))
+    with pytest.raises(UserError, match=f"depth.npy: depth must be a single-channel image, got {channels} channels"):
+        read_depth(tmp_path / "depth.npy")
+    np.save(tmp_path / "one.npy", grey[..., None])  # an explicit single channel is fine
+    assert read_depth(tmp_path / "one.npy")[0].shape == (48, 64)

@@ -35,6 +35,8 @@ def test_mesh_command_writes_the_contract_files(mesh_folder):
     record = json.loads((mesh_folder / "scene.json").read_text())
     assert record["capture"]["intrinsics"]["fx"] == 525.0
     assert record["capture"]["depth_scale"] == 1000.0
+    assert record["options"]["sensor"] == "kinect_v1"  # the default preset's sensor
+    assert record["fill"]["settings"]["sensor"]["kind"] == "structured_light"
     assert 0.02 < record["fill"]["stats"]["hole_fraction"] < 0.2
     assert record["mesh"]["stats"]["faces_kept"] > 0
     for key in ("fill_s", "mesh_s", "smooth_s", "compute_s"):
@@ -71,6 +73,9 @@ def test_mesh_vertices_lie_on_their_pixel_rays_in_metres(mesh_folder):
         ("unwritable", "output"),
         ("bad_preset", "unknown camera preset"),
         ("bad_fill", "--fill"),
+        ("bad_sensor", "--sensor: unknown sensor 'sonar'"),
+        ("rgb_as_depth", "depth must be a single-channel image, got 3 channels"),
+        ("rgba_depth", "depth must be a single-channel image, got 4 channels"),
     ],
 )
 def test_user_errors_are_one_line_exit_2(tmp_path, case, message):
@@ -91,6 +96,15 @@ def test_user_errors_are_one_line_exit_2(tmp_path, case, message):
         args = ["mesh", *SAMPLE_ARGS[:4], "--preset", "nope", "-o", tmp_path / "out"]
     elif case == "bad_fill":
         args += ["--fill", "magic"]
+    elif case == "bad_sensor":
+        args += ["--sensor", "sonar"]
+    elif case in ("rgb_as_depth", "rgba_depth"):
+        # 16-bit colour images with equal channels: they look like depth values, and used to make a mesh
+        channels = 3 if case == "rgb_as_depth" else 4
+        depth = cv2.imread(str(BUNDLED_SAMPLE / "depth.png"), cv2.IMREAD_UNCHANGED)
+        colour = tmp_path / f"depth_{channels}.png"
+        cv2.imwrite(str(colour), np.dstack([depth] * channels))
+        args[4] = colour
     result = run_cli(*args)
     assert result.returncode == 2, result.stderr
     lines = [ln for ln in result.stderr.splitlines() if ln.strip()]

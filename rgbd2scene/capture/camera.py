@@ -89,6 +89,8 @@ PRESETS: dict[str, Intrinsics] = {
 #: Depth scale (units per metre) that goes with a preset's usual depth PNGs.
 PRESET_DEPTH_SCALE = {"primesense": 1000.0, "kinect_v1": 1000.0, "tum_fr1": 5000.0, "tum_fr2": 5000.0,
                       "tum_fr3": 5000.0}
+#: The depth sensor (``rgbd2scene.capture.sensors``) of each preset: all are Kinect v1 / PrimeSense.
+PRESET_SENSOR = {name: "kinect_v1" for name in PRESETS}
 
 
 def preset(name: str) -> Intrinsics:

@@ -217,10 +217,13 @@ def _read_exr(path: Path) -> np.ndarray | None:
 
 
 def _squeeze_depth(path: Path, arr: np.ndarray) -> np.ndarray:
-    if arr.ndim == 3 and arr.shape[2] >= 1:
-        arr = arr[..., 0] if arr.shape[2] in (3, 4) and np.allclose(arr[..., 0], arr[..., 1]) else arr
+    """The single channel of a depth image. Colour images are refused even when their channels agree:
+    depth is one channel, and a 3- or 4-channel file is almost always a colour image given by mistake."""
     if arr.ndim == 3 and arr.shape[2] == 1:
         arr = arr[..., 0]
+    if arr.ndim == 3 and arr.shape[2] in (3, 4):
+        raise UserError(f"{path}: depth must be a single-channel image, got {arr.shape[2]} channels "
+                        "(a colour image?)")
     if arr.ndim != 2:
         raise UserError(f"{path}: depth must be a single-channel image, got shape {arr.shape}")
     return arr

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rgbd2scene.capture.readers import Capture
+from rgbd2scene.capture.sensors import get_sensor
 from rgbd2scene.capture.stereo import STEREO_SMOOTH_ITERATIONS
 from rgbd2scene.conventions import transform_points
 from rgbd2scene.errors import UserError
@@ -28,6 +29,10 @@ class MeshOptions:
     fill: str | None = option(None, "hole filling: auto, inpaint, colorization, biharmonic, background, none "
                               "(default auto; none when fusing frames, whose holes the other frames fill)",
                               choices=FILL_METHODS)
+    sensor: str | None = option(None, "depth sensor, for where occlusion shadows fall: kinect_v1 (structured "
+                                "light), kinect_v2, azure_kinect (time of flight: no shadows), realsense (active "
+                                "stereo), none (default: the preset's sensor; kinect_v1 for --camera; none for a "
+                                "stereo frame)")
     max_relative_jump: float = option(0.03, "drop triangles whose relative depth jump exceeds this",
                                       flag="--max-jump")
     max_grazing_deg: float = option(85.0, "drop triangles seen more obliquely than this many degrees",
@@ -71,13 +76,22 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     options = options or MeshOptions()
     stereo = capture.depth_format == "stereo"
     options = replace(options, fill=options.fill or "auto", smooth=options.smooth or "ray",
+                      sensor=options.sensor or ("none" if stereo else "kinect_v1"),
                       smooth_iterations=options.smooth_iterations if options.smooth_iterations is not None
                       else STEREO_SMOOTH_ITERATIONS if stereo else 10)
     timings = {}
     t0 = time.perf_counter()
+    try:
+        sensor = get_sensor(options.sensor)
+    except ValueError as exc:
+        raise UserError(f"--sensor: {exc}") from None
     # A rectified image's empty margins are no sensor border band: extrapolating into them would paint a
     # frame of made-up depth along the margins.
-    filled = fill_depth(capture.depth, capture.rgb, method=options.fill, fill_border=capture.image_mask is None)
+    try:
+        filled = fill_depth(capture.depth, capture.rgb, method=options.fill, sensor=sensor,
+                            fx=capture.intrinsics.fx, fill_border=capture.image_mask is None)
+    except ValueError as exc:
+        raise UserError(f"--fill: {exc}") from None
     if capture.image_mask is not None:
         filled = restrict_to_image(filled, capture.image_mask)
     timings["fill_s"] = time.perf_counter() - t0

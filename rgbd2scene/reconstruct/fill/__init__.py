@@ -1,0 +1,21 @@
+"""Depth hole filling for RGB-D captures (float32 metres, NaN = hole).
+
+``holes``: which invalid pixels lie on the captured surface (enclosure, border band, beyond range) and
+the depth steps and shadows across them; ``solvers``: the fills themselves, pure functions on arrays;
+``policy``: :func:`fill_depth`, which applies the one to the other (``auto`` chooses per hole).
+"""
+
+from rgbd2scene.reconstruct.fill.holes import HoleMap, classify_holes, shadow_pixels, step_runs
+from rgbd2scene.reconstruct.fill.policy import FILL_METHODS, FillResult, fill_depth
+from rgbd2scene.reconstruct.fill.solvers import (
+    fill_background,
+    fill_biharmonic,
+    fill_colorization,
+    fill_harmonic,
+    fill_inpaint,
+    fill_row_background,
+)
+
+__all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "fill_background", "fill_biharmonic",
+           "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint", "fill_row_background",
+           "shadow_pixels", "step_runs"]
