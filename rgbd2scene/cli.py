@@ -31,6 +31,8 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None:
+    from rgbd2scene.reconstruct.texture import HIGHLIGHT_MODES
+
     g = p.add_argument_group("capture")
     g.add_argument("--rgb", required=required, help="colour image (PNG, JPEG, PPM, BMP)")
     g.add_argument("--depth", required=required, help="depth: 16-bit PNG, float EXR/.npy (m), NYU raw PGM, SUN PNG")
@@ -49,6 +51,10 @@ def _add_capture_args(p: argparse.ArgumentParser, required: bool = True) -> None
     m.add_argument("--smooth", default="ray", help="smoothing: ray (keeps texture registered), taubin, "
                    "corrective, none (default ray)")
     m.add_argument("--smooth-iterations", type=int, default=10, help="smoothing strength (default 10)")
+    m.add_argument("--highlights", default="remove", choices=HIGHLIGHT_MODES,
+                   help="specular highlights of the capture image: remove them from the texture (filled from "
+                   "the surrounding colour; the image as captured is kept as texture_original.png) or keep "
+                   "them (default remove)")
     m.add_argument("--no-overview", action="store_true", help="skip overview.png")
 
 
@@ -73,7 +79,7 @@ def _mesh_options(args):
 
     return MeshOptions(fill=args.fill, max_relative_jump=args.max_jump, max_grazing_deg=args.max_grazing,
                        smooth=args.smooth, smooth_iterations=args.smooth_iterations,
-                       overview=not args.no_overview)
+                       highlights=args.highlights, overview=not args.no_overview)
 
 
 def cmd_mesh(args) -> int:

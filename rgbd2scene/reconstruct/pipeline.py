@@ -1,5 +1,9 @@
 """Reconstruction end to end, pure computation: capture -> filled depth -> mesh -> smoothed mesh.
 
+The mesh's texture and vertex colours are the capture image without its specular highlights
+(``MeshOptions.highlights``, see ``rgbd2scene.reconstruct.texture``); hole filling sees the image as
+captured.
+
 Writing the results is the mesh stage's job (``rgbd2scene.stages.mesh``).
 """
 
@@ -8,11 +12,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from rgbd2scene.capture.readers import Capture
 from rgbd2scene.errors import UserError
 from rgbd2scene.reconstruct.fill import FillResult, fill_depth
 from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
 from rgbd2scene.reconstruct.smooth import smooth_mesh
+from rgbd2scene.reconstruct.texture import highlight_stats, remove_highlights
 
 
 @dataclass
@@ -24,6 +31,7 @@ class MeshOptions:
     max_grazing_deg: float = 85.0
     smooth: str = "ray"
     smooth_iterations: int = 10
+    highlights: str = "remove"  # or "keep": the texture as captured
     overview: bool = True
 
     def to_dict(self) -> dict:
@@ -36,6 +44,7 @@ class Reconstruction:
     options: MeshOptions
     filled: FillResult
     mesh: Mesh
+    highlights: np.ndarray  # bool (H, W): capture pixels the texture fills in (specular highlights)
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
 
@@ -49,7 +58,11 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     timings["fill_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    mesh, mesh_stats = grid_mesh(filled.depth, capture.intrinsics.K, capture.rgb,
+    texture, highlights = remove_highlights(capture.rgb, options.highlights)
+    timings["texture_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    mesh, mesh_stats = grid_mesh(filled.depth, capture.intrinsics.K, texture,
                                  max_relative_jump=options.max_relative_jump,
                                  max_grazing_deg=options.max_grazing_deg)
     timings["mesh_s"] = time.perf_counter() - t0
@@ -59,6 +72,7 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     t0 = time.perf_counter()
     mesh, smooth_stats = smooth_mesh(mesh, method=options.smooth, iterations=options.smooth_iterations)
     timings["smooth_s"] = time.perf_counter() - t0
-    timings["compute_s"] = timings["fill_s"] + timings["mesh_s"] + timings["smooth_s"]
-    stats = {"fill": filled.stats, "mesh": mesh_stats, "smooth": smooth_stats}
-    return Reconstruction(capture, options, filled, mesh, stats, timings)
+    timings["compute_s"] = timings["fill_s"] + timings["texture_s"] + timings["mesh_s"] + timings["smooth_s"]
+    stats = {"fill": filled.stats, "texture": {"highlights": options.highlights, **highlight_stats(highlights)},
+             "mesh": mesh_stats, "smooth": smooth_stats}
+    return Reconstruction(capture, options, filled, mesh, highlights, stats, timings)

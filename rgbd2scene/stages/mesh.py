@@ -1,26 +1,34 @@
 """The mesh stage (``rgbd2scene mesh``): write a reconstruction as a mesh folder (CONVENTIONS §4).
 
-mesh.ply, depth_filled.npy, a textured OBJ and overview.png, then ``scene.json`` last, so a folder with a
-scene.json is complete.
+mesh.ply, depth_filled.npy, a textured OBJ (its ``mesh_texture.png`` is the capture image without specular
+highlights; the image as captured is kept as ``texture_original.png`` when they were removed) and
+overview.png, then ``scene.json`` last, so a folder with a scene.json is complete.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.files.atomic import ensure_output_dir, write_json, write_npy
+from rgbd2scene.files.images import write_image
 from rgbd2scene.files.meshio import write_ply, write_textured_obj
 from rgbd2scene.reconstruct.pipeline import Reconstruction
+from rgbd2scene.reconstruct.texture import HighlightSettings
 from rgbd2scene.versions import software_versions
+
+#: The capture image as captured, next to the texture without highlights (``mesh_texture.png``).
+TEXTURE_ORIGINAL = "texture_original.png"
 
 
 def scene_record(recon: Reconstruction) -> dict:
     """The reconstruction part of scene.json: inputs, intrinsics, scale, settings, statistics, timings."""
     fill = recon.filled
+    removed = recon.options.highlights == "remove"
     return {
         "conventions_version": CONVENTIONS_VERSION,
         "software": software_versions(),
@@ -32,9 +40,12 @@ def scene_record(recon: Reconstruction) -> dict:
                  "max_grazing_deg": recon.options.max_grazing_deg},
         "smooth": {"method": recon.options.smooth, "iterations": recon.options.smooth_iterations,
                    "stats": recon.stats["smooth"]},
+        "texture": {"highlights": recon.options.highlights, "stats": recon.stats["texture"],
+                    "settings": asdict(HighlightSettings()) if removed else None},
         "timings": recon.timings,
         "files": {"mesh": "mesh.ply", "depth_filled": "depth_filled.npy", "textured_mesh": "mesh.obj",
-                  "texture": "mesh_texture.png", "overview": "overview.png"},
+                  "texture": "mesh_texture.png", "overview": "overview.png",
+                  **({"texture_original": TEXTURE_ORIGINAL} if removed else {})},
     }
 
 
@@ -51,6 +62,8 @@ def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool
     depth_filled = recon.filled.depth.astype(np.float32)
     write_npy(out / "depth_filled.npy", depth_filled)
     write_textured_obj(out, recon.mesh, name="mesh")
+    if recon.options.highlights == "remove":
+        write_image(out / TEXTURE_ORIGINAL, recon.capture.rgb)
     if recon.options.overview:
         from rgbd2scene.pictures.overview import render_mesh_image, write_overview
 

@@ -23,6 +23,7 @@ from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, SceneObject
 from rgbd2scene.scene.path import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
 from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
+from rgbd2scene.stages.mesh import TEXTURE_ORIGINAL
 
 
 @dataclass
@@ -121,7 +122,8 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
         if mesh.texture is None:
             raise UserError(f"{texture_path}: not a readable texture image")
     if src.resolve() != out_dir.resolve():
-        for name in ("mesh.ply", "depth_filled.npy", "mesh.obj", "mesh.mtl", "mesh_texture.png", "overview.png"):
+        for name in ("mesh.ply", "depth_filled.npy", "mesh.obj", "mesh.mtl", "mesh_texture.png", TEXTURE_ORIGINAL,
+                     "overview.png"):
             if (src / name).is_file():
                 shutil.copy2(src / name, out_dir / name)
     record.pop("scene", None)
