@@ -119,8 +119,13 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--frames", type=int, default=d.frames, help="frames in the path (default 60)")
     g.add_argument("--fps", type=float, default=d.fps, help="frames per second (default 30)")
     g.add_argument("--standoff", type=float, default=d.standoff, help="distance to the tissue, metres (default 0.04)")
-    g.add_argument("--seed", type=int, default=d.seed, help="seed of generated paths (default 0)")
+    g.add_argument("--seed", type=int, default=d.seed, help="seed of generated paths and of the tissue detail "
+                   "(default 0)")
     g.add_argument("--material", default=d.material, choices=MATERIALS, help="tissue look (default wet_tissue)")
+    g.add_argument("--tissue-detail", default="on" if d.tissue_detail.enabled else "off", choices=("on", "off"),
+                   help="procedural sub-millimetre micro-structure of the wet_tissue material (albedo mottling, "
+                   "small vessels, bumps; seeded by --seed; shading only, the ground truth does not change) "
+                   "(default on)")
     g.add_argument("--light", default=d.light, choices=("spot", "point"), help="light at the tip (default spot)")
     g.add_argument("--light-power", type=float, default=d.light_power_w, help="light power, watts (default 0.05)")
 
@@ -129,6 +134,7 @@ def cmd_scene(args) -> int:
     from rgbd2scene.capture.camera import load_camera_json
     from rgbd2scene.files.atomic import ensure_output_dir
     from rgbd2scene.reconstruct.pipeline import reconstruct
+    from rgbd2scene.scene.materials import TissueDetail
     from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
     from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder
 
@@ -137,8 +143,9 @@ def cmd_scene(args) -> int:
     scope = load_camera_json(args.scope_camera)[0] if args.scope_camera else None
     options = SceneOptions(size=args.size, fov_x_deg=args.fov, intrinsics=scope, baseline=args.baseline, path=args.path,
                            path_file=args.path_file, frames=args.frames, fps=args.fps, standoff=args.standoff,
-                           seed=args.seed, material=args.material, light=args.light,
-                           light_power_w=args.light_power)
+                           seed=args.seed, material=args.material,
+                           tissue_detail=TissueDetail(enabled=args.tissue_detail == "on", seed=args.seed),
+                           light=args.light, light_power_w=args.light_power)
     if args.mesh_dir:
         mesh, record = load_mesh_folder(args.mesh_dir, out)
     elif args.rgb and args.depth:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+from rgbd2scene.scene.materials import TissueDetail
 from rgbd2scene.scene.path import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
@@ -64,15 +65,18 @@ class SceneDescription:
     mesh_file: str = "mesh.ply"
     texture_file: str = "texture.png"
     objects: list[SceneObject] = field(default_factory=lambda: [SceneObject(1, "tissue")])
+    tissue_detail: TissueDetail = field(default_factory=TissueDetail)  # of the "wet_tissue" material
 
     def to_dict(self) -> dict:
         return {"rig": self.rig.to_dict(), "path": self.path.to_dict(), "light": self.light.to_dict(),
                 "material": self.material, "mesh_file": self.mesh_file, "texture_file": self.texture_file,
-                "objects": [o.to_dict() for o in self.objects]}
+                "objects": [o.to_dict() for o in self.objects], "tissue_detail": self.tissue_detail.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> SceneDescription:
+        # a description without "tissue_detail" was written before the detail existed: its scene has none
+        detail = d.get("tissue_detail", {"enabled": False})
         return cls(StereoRig.from_dict(d["rig"]), CameraPath.from_dict(d["path"]),
                    Light.from_dict(d.get("light", {})), d.get("material", "wet_tissue"),
                    d.get("mesh_file", "mesh.ply"), d.get("texture_file", "texture.png"),
-                   [SceneObject.from_dict(o) for o in d.get("objects", [])])
+                   [SceneObject.from_dict(o) for o in d.get("objects", [])], TissueDetail.from_dict(detail))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +20,7 @@ from rgbd2scene.files.atomic import write_json
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.scene.materials import TissueDetail
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, SceneObject
 from rgbd2scene.scene.path import DEFAULT_STANDOFF, CameraPath, load_path_file, make_path, path_coverage
 from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
@@ -41,6 +42,7 @@ class SceneOptions:
     standoff: float = DEFAULT_STANDOFF
     seed: int = 0
     material: str = "wet_tissue"
+    tissue_detail: TissueDetail = field(default_factory=TissueDetail)  # of the wet_tissue material
     light: str = "spot"
     light_power_w: float = 0.05
 
@@ -71,8 +73,12 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         path = make_path(options.path, vertices, triangles, rig, frames=options.frames, fps=options.fps,
                          seed=options.seed, standoff=options.standoff, rc=rc)
     light = Light(kind=options.light, power_w=options.light_power_w)
+    detail = options.tissue_detail
+    if options.material != "wet_tissue":  # only the wet-tissue material has it: record what is built
+        detail = replace(detail, enabled=False)
     return SceneDescription(rig, path, light, options.material, mesh_file="mesh.ply",
-                            texture_file="mesh_texture.png", objects=[SceneObject(1, "tissue")])
+                            texture_file="mesh_texture.png", objects=[SceneObject(1, "tissue")],
+                            tissue_detail=detail)
 
 
 def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions) -> dict:
@@ -89,7 +95,7 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions)
     timings["blend_s"] = time.perf_counter() - t0
     record = dict(record)
     record["scene"] = desc.to_dict()
-    record["scene_options"] = {k: (list(v) if isinstance(v, tuple) else v.to_dict() if isinstance(v, Intrinsics)
+    record["scene_options"] = {k: (list(v) if isinstance(v, tuple) else v.to_dict() if hasattr(v, "to_dict")
                                    else v) for k, v in options.__dict__.items()}
     record["coverage"] = {"min": float(coverage.min()), "mean": float(coverage.mean()),
                           "per_frame_left_right": coverage.round(4).tolist(), "check_scale": 0.5}
