@@ -11,8 +11,8 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-BENCHMARKS = ["bench_mesh.py", "bench_fill.py", "bench_render.py"]
-HAS_QUICK = {"bench_fill.py", "bench_render.py"}
+BENCHMARKS = ["bench_mesh.py", "bench_fill.py", "bench_render.py", "bench_realism.py"]
+HAS_QUICK = {"bench_fill.py", "bench_render.py", "bench_realism.py"}
 
 if __name__ == "__main__":
     status = 0

@@ -40,9 +40,12 @@ VERTEX_COLORS = "Col"
 TEXTURE_INTERPOLATION = "Linear"
 #: Colour at a vessel's centre line relative to the tissue's (linear RGB): dark red, blood under a thin wall.
 VESSEL_TINT = (0.55, 0.18, 0.22)
-#: Mean of (vessel line x patch mask) over the surface per unit of vessel_width_m / vessel_spacing_m, measured
-#: on rendered planes; tests/test_materials.py checks that the mean colour holds.
-VESSEL_COVERAGE_PER_WIDTH = 0.84
+#: Typical growth of |n - 0.5| per noise period across a crossing of Blender's (smooth, 1-octave) noise, and
+#: the mean of (vessel line x patch mask) over the surface per unit of vessel_width_m / vessel_spacing_m:
+#: both measured on rendered planes (vessel full width at half maximum; mean colour). tests/test_materials.py
+#: checks that the mean colour holds.
+NOISE_CROSSING_SLOPE = 0.58
+VESSEL_COVERAGE_PER_WIDTH = 0.65
 #: Height of the vessels relative to the bumps' (slightly raised: superficial vessels bulge a little).
 VESSEL_RELIEF = 0.3
 #: Range of the seed-derived offset of the pattern coordinates, in metres.
@@ -216,8 +219,9 @@ def _vessels(nodes, links, position, detail: TissueDetail):
     """1 on a vessel's centre line, 0 between vessels: where a smooth noise crosses its mean, in patches."""
     field = _noise(nodes, links, position, detail.vessel_spacing_m, detail=0.0, w=2.0)
     distance = _math(nodes, links, "ABSOLUTE", _math(nodes, links, "SUBTRACT", field, 0.5))
-    # |n - 0.5| grows about 1.5 per noise period across a crossing (typical slope of Blender's noise)
-    half_width = 1.5 * 0.5 * detail.vessel_width_m / detail.vessel_spacing_m
+    # the line fades out (smoothstep) over |n - 0.5| < half_width: its full width at half maximum is
+    # vessel_width_m where |n - 0.5| grows by NOISE_CROSSING_SLOPE per noise period
+    half_width = NOISE_CROSSING_SLOPE * detail.vessel_width_m / detail.vessel_spacing_m
     line = _map_range(nodes, links, distance, 0.0, half_width, 1.0, 0.0, "SMOOTHSTEP", clamp=True)
     patches = _noise(nodes, links, position, 3.0 * detail.vessel_spacing_m, detail=1.0, w=3.0)
     mask = _map_range(nodes, links, patches, 0.45, 0.6, 0.0, 1.0, "SMOOTHSTEP", clamp=True)

@@ -39,7 +39,8 @@ class TissueDetail:
     vessel_strength
         Darkening towards the vessel colour at the centre of a vessel (0: no vessels).
     vessel_width_m, vessel_spacing_m
-        Width of a small vessel and the typical distance between neighbouring ones.
+        Width of a small vessel (full width at half darkening) and the typical distance between neighbouring
+        ones.
     bump_height_m
         Height of the bumps (shading only); vessels are raised by 0.3 of it.
 
@@ -49,12 +50,12 @@ class TissueDetail:
 
     enabled: bool = True
     seed: int = 0
-    scale_m: float = 0.002
-    mottle_strength: float = 0.06
+    scale_m: float = 0.003
+    mottle_strength: float = 0.09
     vessel_strength: float = 0.6
-    vessel_width_m: float = 0.0001
+    vessel_width_m: float = 0.00013
     vessel_spacing_m: float = 0.003
-    bump_height_m: float = 0.0002
+    bump_height_m: float = 0.0003
 
     def __post_init__(self):
         for name in ("scale_m", "vessel_width_m", "vessel_spacing_m"):
