@@ -26,7 +26,7 @@ Blender-side conventions (the project's contract is OpenCV; see ``rgbd2scene.con
   an ambient strength is asked for, so the scope light is the only light.
 * **Colour.** View transform 'Standard', look None, exposure 0, gamma 1, display sRGB, dither 0: with the
   "as_captured" material (Emission strength 1 from the sRGB texture) an 8-bit render from the capture
-  camera reproduces the texture bytes.
+  camera reproduces the texture bytes. The materials' node graphs are in ``render.materials``.
 * **Ids.** The tissue object's ``pass_index`` is its instance id (1), for the IndexOB pass.
 * The scene's custom property ``scene["rgbd2scene"]`` holds the description as JSON.
 
@@ -50,25 +50,21 @@ import numpy as np
 from mathutils import Matrix
 from scipy.spatial.transform import Rotation
 
-from render.materials import OBJECT_MATERIALS
+from render.materials import VERTEX_COLORS, make_material, use_metric_texture_space
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.scene.deformation import Deformation, rest_normals
-from rgbd2scene.scene.model import Light, Material, SceneDescription, SceneObject
+from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
 from rgbd2scene.scene.paths import CameraPath
 
 TISSUE = "Tissue"
 CAMERA = "Endoscope"
 LIGHT = "ScopeLight"
 TEXTURE = "Texture"
-VERTEX_COLORS = "Col"
 SCENE_PROPERTY = "rgbd2scene"
-#: Texture filtering: bilinear. At texel centres (the capture view) it is as exact as 'Closest'
-#: (round-trip test) and it does not turn magnified tissue into blocks when the scope moves closer.
-TEXTURE_INTERPOLATION = "Linear"
 
 
 def build_scene(description: SceneDescription, scene_dir: str | Path, blend_path: str | Path | None = None, *,
@@ -118,8 +114,10 @@ def build_mesh_object(scene, obj: SceneObject, scene_dir: Path, description: Sce
         name = TISSUE if tissue else f"{obj.name}.{part.name}"
         if image_file is not None:
             image = add_texture(image_file, name=TEXTURE if tissue else f"{name}.texture")
-        material = make_material(part.material.kind, image, part.material, mesh.vertex_colors is not None)
+        material = make_material(part.material, image, mesh.vertex_colors is not None)
         bobj = add_tissue(mesh, material, part.id, name=name)
+        if part.material.detail is not None and part.material.detail.enabled:
+            use_metric_texture_space(bobj.data)  # the micro-structure is sized in metres on the surface
         if part.poses is not None:
             key_poses(scene, bobj, part.poses)
         if part.deformation is not None:
@@ -220,48 +218,6 @@ def add_texture(texture: np.ndarray, name: str = TEXTURE):
     if image.packed_file is None:
         raise RuntimeError("Blender did not pack the texture")
     return image
-
-
-def make_material(kind: str, image=None, material: Material | None = None, vertex_colors: bool = True):
-    """"as_captured": unlit, the texture's colours exactly; "wet_tissue": glossy, light-dependent tissue.
-
-    Without ``image`` the colour comes from the mesh's vertex colours (attribute "Col"). Object looks
-    (``metal``, ``dark_plastic``, ``color``) are built by ``render.materials.OBJECT_MATERIALS`` from the part's
-    ``material`` (its colour) and whether the mesh has ``vertex_colors``.
-    """
-    if kind in OBJECT_MATERIALS:
-        return OBJECT_MATERIALS[kind](material or Material(kind), image, vertex_colors)
-    mat = bpy.data.materials.new(kind)
-    nodes, links = mat.node_tree.nodes, mat.node_tree.links
-    nodes.clear()
-    out = nodes.new("ShaderNodeOutputMaterial")
-    if image is not None:
-        tex = nodes.new("ShaderNodeTexImage")
-        tex.image = image
-        tex.interpolation = TEXTURE_INTERPOLATION
-        tex.extension = "EXTEND"
-    else:
-        tex = nodes.new("ShaderNodeVertexColor")
-        tex.layer_name = VERTEX_COLORS
-    if kind == "as_captured":
-        shader = nodes.new("ShaderNodeEmission")
-        shader.inputs["Strength"].default_value = 1.0
-        links.new(tex.outputs["Color"], shader.inputs["Color"])
-        links.new(shader.outputs["Emission"], out.inputs["Surface"])
-    elif kind == "wet_tissue":
-        shader = nodes.new("ShaderNodeBsdfPrincipled")
-        links.new(tex.outputs["Color"], shader.inputs["Base Color"])
-        links.new(tex.outputs["Color"], shader.inputs["Subsurface Radius"])  # reddish scattering
-        settings = {"Roughness": 0.3, "Specular IOR Level": 0.5, "IOR": 1.4,
-                    "Coat Weight": 0.3, "Coat Roughness": 0.08, "Coat IOR": 1.33,  # thin wet film
-                    "Subsurface Weight": 0.05, "Subsurface Scale": 0.0005}  # metres: mm-scale scattering
-        for key, value in settings.items():
-            shader.inputs[key].default_value = value
-        links.new(shader.outputs["BSDF"], out.inputs["Surface"])
-    else:
-        raise ValueError(f"unknown material {kind!r}; choose one of as_captured, wet_tissue, "
-                         f"{', '.join(OBJECT_MATERIALS)}")
-    return mat
 
 
 def add_tissue(mesh, material, pass_index: int = 1, name: str = TISSUE):

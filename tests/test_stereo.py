@@ -230,8 +230,11 @@ def test_hamlyn_mesh_lies_in_the_unrectified_left_camera(hamlyn):
     left = read_rgb(folder / LEFT).astype(np.float32)
     x, y = projected.reshape(-1, 2).T
     sampled = np.stack([ndimage.map_coordinates(left[..., c], [y, x], order=1) for c in range(3)], axis=-1)
-    err = np.abs(sampled - mesh.vertex_colors)
-    print(f"vertex colour vs the original left image: median {np.median(err):.2f}, p99 {np.percentile(err, 99):.1f}")
+    # (vertices whose pixel lies in a specular highlight take the colour filled in around it, not the capture's)
+    captured = ~recon.highlights.ravel()[mesh.pixels]
+    err = np.abs(sampled - mesh.vertex_colors)[captured]
+    print(f"vertex colour vs the original left image: median {np.median(err):.2f}, p99 {np.percentile(err, 99):.1f} "
+          f"({100 * captured.mean():.1f} % of vertices outside highlights)")
     assert np.median(err) < 1.0 and np.percentile(err, 99) < 3.0
 
 

@@ -309,4 +309,5 @@ def reconstruct_fused(captures: list[Capture], poses: np.ndarray | None = None, 
         "timings": {k: round(v, 4) for k, v in timings.items()},
     }
     stats = {"fill": filled.stats, "mesh": fuse_stats, "smooth": smooth_stats}
-    return Reconstruction(first, options, filled, mesh, stats, timings, sections={"fusion": record})
+    return Reconstruction(first, options, filled, mesh, np.zeros(first.depth.shape, bool), stats, timings,
+                          sections={"fusion": record})

@@ -1,5 +1,9 @@
 """Reconstruction end to end, pure computation: capture -> filled depth -> mesh -> smoothed mesh.
 
+The mesh's texture and vertex colours are the capture image without its specular highlights
+(``MeshOptions.highlights``, see ``rgbd2scene.reconstruct.texture``); hole filling sees the image as
+captured.
+
 Writing the results is the mesh stage's job (``rgbd2scene.stages.mesh``).
 """
 
@@ -20,6 +24,7 @@ from rgbd2scene.reconstruct.fill import FILL_METHODS, FillResult, fill_depth
 from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
 from rgbd2scene.reconstruct.smooth import METHODS as SMOOTH_METHODS
 from rgbd2scene.reconstruct.smooth import smooth_mesh
+from rgbd2scene.reconstruct.texture import HIGHLIGHT_MODES, highlight_stats, remove_highlights
 
 
 @dataclass
@@ -41,6 +46,9 @@ class MeshOptions:
                                 "(default ray; none when fusing frames)", choices=SMOOTH_METHODS)
     smooth_iterations: int | None = option(None, "smoothing strength (default 10; 30 for a stereo frame, whose "
                                            "depth is rougher)")
+    highlights: str = option("remove", "specular highlights of the capture image: remove them from the texture "
+                             "(filled from the surrounding colour; the image as captured is kept as "
+                             "texture_original.png) or keep them", choices=HIGHLIGHT_MODES)
     overview: bool = option(True, "skip overview.png")
 
     def to_dict(self) -> dict:
@@ -55,6 +63,7 @@ class Reconstruction:
     options: MeshOptions
     filled: FillResult
     mesh: Mesh
+    highlights: np.ndarray  # bool (H, W): capture pixels the texture fills in (specular highlights)
     stats: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
     sections: dict = field(default_factory=dict)
@@ -97,7 +106,11 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     timings["fill_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    mesh, mesh_stats = grid_mesh(filled.depth, capture.intrinsics.K, capture.rgb,
+    texture, highlights = remove_highlights(capture.rgb, options.highlights)
+    timings["texture_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    mesh, mesh_stats = grid_mesh(filled.depth, capture.intrinsics.K, texture,
                                  max_relative_jump=options.max_relative_jump,
                                  max_grazing_deg=options.max_grazing_deg)
     timings["mesh_s"] = time.perf_counter() - t0
@@ -109,6 +122,7 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     if capture.posed:
         mesh.vertices = transform_points(capture.T_world_capture, mesh.vertices)
     timings["smooth_s"] = time.perf_counter() - t0
-    timings["compute_s"] = timings["fill_s"] + timings["mesh_s"] + timings["smooth_s"]
-    stats = {"fill": filled.stats, "mesh": mesh_stats, "smooth": smooth_stats}
-    return Reconstruction(capture, options, filled, mesh, stats, timings)
+    timings["compute_s"] = timings["fill_s"] + timings["texture_s"] + timings["mesh_s"] + timings["smooth_s"]
+    stats = {"fill": filled.stats, "texture": {"highlights": options.highlights, **highlight_stats(highlights)},
+             "mesh": mesh_stats, "smooth": smooth_stats}
+    return Reconstruction(capture, options, filled, mesh, highlights, stats, timings)

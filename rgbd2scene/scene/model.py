@@ -24,6 +24,7 @@ import numpy as np
 
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.deformation import Deformation, SurfaceAnchor, rotation_between
+from rgbd2scene.scene.materials import TissueDetail
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
 
@@ -64,14 +65,17 @@ class Material:
     kind: str = "wet_tissue"
     texture: str | None = None
     color: tuple[float, float, float] | None = None
+    detail: TissueDetail | None = None  # procedural micro-structure (the wet_tissue look)
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "texture": self.texture, "color": None if self.color is None else list(self.color)}
+        return {"kind": self.kind, "texture": self.texture, "color": None if self.color is None else list(self.color),
+                "detail": None if self.detail is None else self.detail.to_dict()}
 
     @classmethod
     def from_dict(cls, d: dict) -> Material:
-        color = d.get("color")
-        return cls(str(d.get("kind", "wet_tissue")), d.get("texture"), None if color is None else tuple(color))
+        color, detail = d.get("color"), d.get("detail")
+        return cls(str(d.get("kind", "wet_tissue")), d.get("texture"), None if color is None else tuple(color),
+                   None if detail is None else TissueDetail.from_dict(detail))
 
 
 def _poses_array(poses) -> np.ndarray | None:
@@ -210,10 +214,10 @@ class SceneObject:
 
 
 def tissue_object(material: str = "wet_tissue", geometry: str = folder.MESH,
-                  texture: str | None = folder.TEXTURE) -> SceneObject:
+                  texture: str | None = folder.TEXTURE, detail: TissueDetail | None = None) -> SceneObject:
     """The reconstructed tissue surface: one part (id 1, class tissue) whose frame is the world frame."""
     return SceneObject("tissue", "tissue", [Part(TISSUE_ID, "surface", TISSUE_CLASS, geometry,
-                                                 Material(material, texture))])
+                                                 Material(material, texture, detail=detail))])
 
 
 @dataclass

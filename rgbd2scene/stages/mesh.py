@@ -1,22 +1,31 @@
 """The mesh stage (``rgbd2scene mesh``): write a reconstruction as a mesh folder (CONVENTIONS §4).
 
-mesh.ply, depth_filled.npy, a textured OBJ and overview.png, then ``scene.json`` last, so a folder with a
-scene.json is complete.
+mesh.ply, depth_filled.npy, a textured OBJ (its ``mesh_texture.png`` is the capture image without specular
+highlights; the image as captured is kept as ``texture_original.png`` when they were removed) and
+overview.png, then ``scene.json`` last, so a folder with a scene.json is complete.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 from rgbd2scene.conventions import CONVENTIONS_VERSION, invert_pose, transform_points
 from rgbd2scene.files.atomic import ensure_output_dir, write_json, write_npy
+from rgbd2scene.files.images import write_image
 from rgbd2scene.files.meshio import write_ply, write_textured_obj
 from rgbd2scene.reconstruct.pipeline import Reconstruction
+from rgbd2scene.reconstruct.texture import HighlightSettings
 from rgbd2scene.scene import folder
 from rgbd2scene.versions import software_versions
+
+
+def _highlights_removed(recon: Reconstruction) -> bool:
+    """Whether the texture is the capture image without its highlights (a single frame; fusion averages)."""
+    return recon.options.highlights == "remove" and "texture" in recon.stats
 
 
 def scene_record(recon: Reconstruction) -> dict:
@@ -27,6 +36,9 @@ def scene_record(recon: Reconstruction) -> dict:
              "texture": folder.TEXTURE, "overview": folder.OVERVIEW}
     if not textured:
         files.pop("texture")
+    removed = _highlights_removed(recon)
+    if removed:
+        files["texture_original"] = folder.TEXTURE_ORIGINAL
     return {
         "conventions_version": CONVENTIONS_VERSION,
         "software": software_versions(),
@@ -38,6 +50,9 @@ def scene_record(recon: Reconstruction) -> dict:
                  "max_grazing_deg": recon.options.max_grazing_deg},
         "smooth": {"method": recon.options.smooth, "iterations": recon.options.smooth_iterations,
                    "stats": recon.stats["smooth"]},
+        "texture": {"highlights": recon.options.highlights if "texture" in recon.stats else "not applied (fused "
+                    "frames: vertex colours averaged from the frames)", "stats": recon.stats.get("texture"),
+                    "settings": asdict(HighlightSettings()) if removed else None},
         "timings": recon.timings,
         "files": files,
         **recon.sections,
@@ -57,6 +72,8 @@ def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool
     depth_filled = recon.filled.depth.astype(np.float32)
     write_npy(out / folder.DEPTH_FILLED, depth_filled)
     write_textured_obj(out, recon.mesh, name=folder.MESH_NAME)
+    if _highlights_removed(recon):
+        write_image(out / folder.TEXTURE_ORIGINAL, recon.capture.rgb)
     if recon.options.overview:
         from rgbd2scene.pictures.overview import render_mesh_image, write_overview
 

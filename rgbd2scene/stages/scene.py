@@ -24,6 +24,7 @@ from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.config import ConfigError, SceneConfig, load_scene_config, parse_scene_config
 from rgbd2scene.scene.deformation import KINDS as DEFORMATIONS
+from rgbd2scene.scene.materials import TissueDetail
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
 from rgbd2scene.scene.objects.assemble import Tissue, add_objects
 from rgbd2scene.scene.paths import (
@@ -59,6 +60,9 @@ class SceneOptions:
     standoff: float = option(DEFAULT_STANDOFF, "distance to the tissue, metres")
     seed: int = option(0, "seed of generated paths")
     material: str = option("wet_tissue", "tissue look", choices=MATERIALS)
+    tissue_detail: str = option("on", "procedural sub-millimetre micro-structure of the wet_tissue material (albedo "
+                                "mottling, small vessels, bumps; seeded by --seed; shading only, the ground truth "
+                                "does not change)", choices=("on", "off"))
     light: str = option("spot", "light at the tip", choices=("spot", "point"))
     light_power_w: float = option(0.05, "light power, watts", flag="--light-power")
     deform: str = option("none", "tissue motion: breathing, heartbeat (periodic displacement along the surface "
@@ -125,7 +129,10 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         except ValueError as exc:
             raise UserError(f"path: {exc}") from None
     light = Light(kind=options.light, power_w=options.light_power_w)
-    tissue = tissue_object(options.material, folder.MESH, texture)
+    # only the wet-tissue material has the micro-structure: record what is built
+    detail = TissueDetail(enabled=options.tissue_detail == "on" and options.material == "wet_tissue",
+                          seed=options.seed)
+    tissue = tissue_object(options.material, folder.MESH, texture, detail)
     config = config or SceneConfig()
     if (config.deformation_preset or options.deform) != "none":
         # centred on the surface the camera looks at in the middle of the path
