@@ -48,6 +48,8 @@ NPZ_COMPRESSLEVEL = 1
 #: Maps stored without compression: unit normals are float noise to zlib (1.57 -> 1.45 MB per 512x256
 #: eye for 40 ms, half the compression time of a frame).
 NPZ_STORED = frozenset({"normals"})
+#: Prefix of DATASET/geometry keys: float vertex positions, stored too (they barely compress either).
+NPZ_STORED_PREFIX = "vertices_"
 #: ZipInfo's compression-level attribute (``_compresslevel`` up to Python 3.12, ``compress_level`` after)
 _LEVEL_SLOT = "compress_level" if "compress_level" in zipfile.ZipInfo.__slots__ else "_compresslevel"
 
@@ -118,7 +120,8 @@ def write_gt(path: str | Path, gt: dict, compresslevel: int = NPZ_COMPRESSLEVEL,
             tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as zf:
         for key, value in gt.items():
             info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_STORED if key in NPZ_STORED else zipfile.ZIP_DEFLATED
+            stored = key in NPZ_STORED or key.startswith(NPZ_STORED_PREFIX)
+            info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
             info.external_attr = 0o644 << 16
             setattr(info, _LEVEL_SLOT, compresslevel)
             with zf.open(info, "w", force_zip64=True) as f:

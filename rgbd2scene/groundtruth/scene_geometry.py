@@ -34,6 +34,7 @@ class _PartMesh:
     vertices: np.ndarray  # rest, part frame, float64 of the stored float32
     triangles: np.ndarray
     normals: np.ndarray | None  # rest normals, for deforming parts
+    basis: np.ndarray | None  # the deformation's basis fields B_k (K, N) at the rest vertices
 
 
 class SceneGeometry:
@@ -53,26 +54,41 @@ class SceneGeometry:
             mesh = read_ply(Path(scene_dir) / part.geometry)
             vertices = mesh.vertices.astype(np.float32).astype(np.float64)
             triangles = np.asarray(mesh.triangles, dtype=np.int64)
-            normals = rest_normals(vertices, triangles) if part.deformation is not None else None
-            self.meshes.append(_PartMesh(part, vertices, triangles, normals))
+            normals = basis = None
+            if part.deformation is not None:
+                normals, basis = rest_normals(vertices, triangles), part.deformation.basis(vertices)
+            self.meshes.append(_PartMesh(part, vertices, triangles, normals, basis))
         offsets = np.cumsum([0] + [len(m.vertices) for m in self.meshes])
         self.triangles = np.concatenate([m.triangles + o for m, o in zip(self.meshes, offsets[:-1], strict=True)])
         self.triangle_ids = np.concatenate([np.full(len(m.triangles), m.part.id, np.uint16) for m in self.meshes])
         self.static = not any(m.part.moving for m in self.meshes)
         self._cache: OrderedDict[int, Raycaster] = OrderedDict()
+        self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
 
     def part_vertices(self, index: int, frame: int) -> np.ndarray:
-        """World-frame vertices (N, 3) float64 of the ``index``-th part at ``frame``."""
+        """World-frame vertices (N, 3) float64 of the ``index``-th part at ``frame``.
+
+        A deforming part is :meth:`Deformation.displace` of its rest mesh, evaluated as
+        ``rest + n * (c(t) @ B)`` with the basis fields B computed once.
+        """
         m = self.meshes[index]
         local = m.vertices
         if m.part.deformation is not None:
-            local = m.part.deformation.displace(local, m.normals, self.description.time(frame))
+            c = m.part.deformation.coefficients(self.description.time(frame))
+            local = local + m.normals * (c @ m.basis)[:, None]
         return transform_points(m.part.pose_at(frame), local)
 
     def vertices(self, frame: int) -> np.ndarray:
         """World-frame vertices of every part at ``frame``, concatenated in model order (N, 3) float64."""
-        return np.concatenate([self.part_vertices(i, frame) for i in range(len(self.meshes))])
+        key = 0 if self.static else int(frame)
+        out = self._vertices.get(key)
+        if out is None:
+            out = np.concatenate([self.part_vertices(i, frame) for i in range(len(self.meshes))])
+            self._vertices[key] = out
+            while len(self._vertices) > self._cache_size:
+                self._vertices.popitem(last=False)
+        return out
 
     def deformed(self) -> list[tuple[int, int]]:
         """(instance id, part index) of the deforming parts (their vertices go to ``DATASET/geometry``)."""
