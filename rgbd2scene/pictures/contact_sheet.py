@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -45,33 +46,47 @@ def colorize_ids(ids: np.ndarray) -> np.ndarray:
     return palette[ids]
 
 
-def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
-    """Contact sheet (RGB uint8) of ``frame``: left/right RGB, then the maps present in the npz files."""
+class Panel(NamedTuple):
+    """One picture of a frame: ``key`` names it (``left_rgb``, ``depth``, ...), ``label`` describes it."""
+
+    key: str
+    image: np.ndarray
+    label: str
+
+
+def frame_panels(root: str | Path, frame: int) -> list[Panel]:
+    """The pictures of ``frame``: left/right RGB, then the left eye's maps present in its npz."""
     panels = []
     for eye in ds.EYES:
         rgb, _ = ds.read_frame(root, eye, frame, rgb=True)
-        panels.append((rgb, f"{eye} rgb"))
+        panels.append(Panel(f"{eye}_rgb", rgb, f"{eye} rgb"))
     _, gt = ds.read_frame(root, "left", frame, rgb=False)
     if "depth" in gt:
         lo, hi = depth_range(gt["depth"])
-        panels.append((colorize_depth(gt["depth"], lo, hi), f"depth {1000 * lo:.0f}-{1000 * hi:.0f} mm"))
+        panels.append(Panel("depth", colorize_depth(gt["depth"], lo, hi), f"depth {1000 * lo:.0f}-{1000 * hi:.0f} mm"))
     if "disparity" in gt:
         lo, hi = depth_range(gt["disparity"])
-        panels.append((colorize_depth(gt["disparity"], lo, hi), f"disparity {lo:.1f}-{hi:.1f} px"))
+        panels.append(Panel("disparity", colorize_depth(gt["disparity"], lo, hi), f"disparity {lo:.1f}-{hi:.1f} px"))
     if "normals" in gt:
-        panels.append((colorize_normals(gt["normals"]), "normals (camera frame)"))
+        panels.append(Panel("normals", colorize_normals(gt["normals"]), "normals (camera frame)"))
     for key in ("flow_forward", "flow_backward"):
         if key in gt and np.isfinite(gt[key]).any():
             mag = np.hypot(gt[key][..., 0], gt[key][..., 1])
-            panels.append((colorize_flow(gt[key]), f"{key.replace('_', ' ')} max {np.nanmax(mag):.1f} px"))
+            panels.append(Panel(key, colorize_flow(gt[key]), f"{key.replace('_', ' ')} max {np.nanmax(mag):.1f} px"))
     if "segmentation" in gt:
-        panels.append((colorize_ids(gt["segmentation"]), "segmentation"))
-    h, w = panels[0][0].shape[:2]
+        panels.append(Panel("segmentation", colorize_ids(gt["segmentation"]), "segmentation"))
+    return panels
+
+
+def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
+    """Contact sheet (RGB uint8) of ``frame``: the :func:`frame_panels` in two columns, labelled."""
+    panels = frame_panels(root, frame)
+    h, w = panels[0].image.shape[:2]
     cell_h = int(round(CELL_W * h / w))
     cols = 2
     rows = (len(panels) + cols - 1) // cols
     sheet = np.full((rows * (cell_h + 4), cols * (CELL_W + 4), 3), BACKGROUND, np.uint8)
-    for i, (img, text) in enumerate(panels):
+    for i, (_, img, text) in enumerate(panels):
         r, c = divmod(i, cols)
         cell = label_panel(fit_cell(img, CELL_W, cell_h), f"{text} (frame {frame})" if i < 2 else text)
         sheet[r * (cell_h + 4):r * (cell_h + 4) + cell_h, c * (CELL_W + 4):c * (CELL_W + 4) + CELL_W] = cell

@@ -49,10 +49,10 @@ class SceneOptions:
     size: tuple[int, int] = option(DEFAULT_SIZE, "endoscope image size WxH", parse=parse_size, metavar="WxH")
     fov_x_deg: float = option(DEFAULT_FOV_X_DEG, "horizontal field of view, degrees", flag="--fov")
     scope_camera: str | None = option(None, "endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, "
-                                      "height); overrides --size and --fov")
+                                      "height); overrides --size and --fov", file=True)
     baseline: float = option(DEFAULT_BASELINE, "stereo baseline, metres")
     path: str = option("scan", "generated camera path", choices=tuple(PATH_GENERATORS))
-    path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)")
+    path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)", file=True)
     frames: int = option(60, "frames in the path")
     fps: float = option(30.0, "frames per second")
     standoff: float = option(DEFAULT_STANDOFF, "distance to the tissue, metres")
