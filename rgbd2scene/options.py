@@ -145,7 +145,7 @@ def from_mapping(cls, values: Mapping[str, Any], where: str = "", base_dir: str 
             value = TypeAdapter(hints[key]).validate_python(value)
         except ValidationError as exc:
             first = exc.errors()[0]
-            raise OptionError(prefix + key, f"{first['msg'][0].lower()}{first['msg'][1:]}, got {value!r}") from None
+            raise OptionError(prefix + key, f"{first['msg']}, got {value!r}") from None
         if meta.get("choices") and value not in meta["choices"]:
             raise OptionError(prefix + key, f"choose one of {', '.join(map(str, meta['choices']))}, got {value!r}")
         if meta.get("file") and value is not None and base_dir is not None:

@@ -225,12 +225,6 @@ class BatchConfig:
     scene: dict
     variations: dict[str, Variation]
 
-    def where(self, name: str, capture: Capture) -> str:
-        """Key path that sets scene field ``name`` for ``capture`` (for error messages)."""
-        if name in self.variations:
-            return f"variations.{name}"
-        return capture.scene_where.get(name, f"scene.{name}")
-
     def record(self) -> dict:
         """The normalised configuration (absolute paths, parsed values) that ROOT/config.json keeps."""
         out = {"format": CONFIG_FORMAT, "seed": self.seed, "captures": [c.record() for c in self.captures],
@@ -346,6 +340,7 @@ def _resolve(path: Path, raw: ConfigFile) -> BatchConfig:
         own_mesh = _parsed(MeshOptions, entry.mesh, f"{where}.mesh", base)
         scene_where = {k: f"scene.{k}" for k in scene_defaults} | {k: f"{where}.scene.{k}" for k in own_scene}
         common = dict(split=entry.split, where=where, scene={**scene_defaults, **own_scene}, scene_where=scene_where)
+        check_scene(common["scene"], scene_where)
         if entry.scene_folder is not None:
             for name, folder in _expand(entry.scene_folder, base, f"{where}.scene", want_dir=True).items():
                 _check_scene_folder(folder, f"{where}.scene")
@@ -401,7 +396,20 @@ def _variation(name: str, spec: Any, base: Path) -> Variation:
             raise OptionError(where, f"uniform needs [lo, hi] of a numeric option, got {values!r}")
         if checked[0] > checked[1]:
             raise OptionError(where, f"uniform range [{checked[0]}, {checked[1]}] has lo > hi")
+    for value in checked:
+        check_scene({name: value}, {name: where})
     return Variation(name, kind, checked, integer)
+
+
+def check_scene(values: dict, where: dict[str, str]) -> SceneOptions:
+    """SceneOptions with ``values`` through the scene stage's own checks (the rig's plausibility); an
+    :class:`OptionError` names the key path ``where[field]`` that set the offending value."""
+    options = SceneOptions(**values)
+    try:
+        options.rig()
+    except OptionError as exc:
+        raise OptionError(where.get(exc.name, f"scene.{exc.name}"), exc.message) from None
+    return options
 
 
 def _glob_regex(pattern: str) -> re.Pattern:

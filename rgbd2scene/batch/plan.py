@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rgbd2scene.batch.config import BatchConfig, Capture
+from rgbd2scene.batch.config import BatchConfig, Capture, check_scene
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import OptionError
 from rgbd2scene.stages.render import RenderOptions
@@ -85,13 +85,12 @@ def make_plan(config: BatchConfig) -> Plan:
             seed = sequence_seed(config.seed, name)
             sampled = {v.name: v.sample(variation_rng(seed, v.name)) for v in config.variations.values()}
             kind = config.paths[k % len(config.paths)]
-            options = SceneOptions(**{**capture.scene, **sampled, "path": kind, "frames": config.frames,
-                                      "seed": seed})
+            values = {**capture.scene, **sampled, "path": kind, "frames": config.frames, "seed": seed}
+            where = {**capture.scene_where, **{k: f"variations.{k}" for k in sampled}}
             try:
-                options.rig()
+                options = check_scene(values, where)
             except OptionError as exc:
-                raise UserError(f"{config.path}: {config.where(exc.name, capture)}: {exc.message} "
-                                f"(sequence {name})") from None
+                raise UserError(f"{config.path}: {exc.name}: {exc.message} (sequence {name})") from None
             sequences.append(SequencePlan(name, capture, k, "file" if options.path_file else kind, seed,
                                           config.frames, options, sampled))
     return Plan(config, sequences)
