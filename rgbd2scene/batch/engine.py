@@ -18,6 +18,8 @@ from rgbd2scene.errors import UserError
 #: How long to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT_S = 20
 DASHBOARD_ADDRESS = ":8787"
+#: Variables Dask sets to 1 in the processes it spawns (``distributed.nanny.pre-spawn-environ``).
+THREAD_LIMITS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
 @dataclass
@@ -59,9 +61,17 @@ class DaskEngine:
         from distributed import Client, LocalCluster
 
         self.cluster = None
+        self._config = None
         if address is None:
             if workers is None or workers < 1:
                 raise UserError(f"--workers: must be at least 1, got {workers}")
+            # A worker runs one unit at a time, which should use the cores: Dask would start its workers with
+            # OMP/MKL/OpenBLAS limited to one thread (measured: the mesh stage 1.8x, the scene stage 1.9x slower)
+            import dask
+
+            environ = dask.config.get("distributed.nanny.pre-spawn-environ", {})
+            self._config = dask.config.set({"distributed.nanny.pre-spawn-environ": {
+                k: v for k, v in environ.items() if k not in THREAD_LIMITS}})
             # memory_limit 0: the Blender processes a task starts are not the worker's memory, and Dask's
             # memory monitor would otherwise pause a worker for what its own imports (Open3D) take
             self.cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
@@ -94,6 +104,8 @@ class DaskEngine:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+        if self._config is not None:
+            self._config.__exit__(None, None, None)
 
 
 def open_engine(workers: int | None = None, scheduler: str | None = None, jobs: int = 1,
