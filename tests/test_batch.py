@@ -366,14 +366,18 @@ def test_kill_9_then_resume_equals_an_uninterrupted_build(reference, captures):
     assert [r.gt_sha256 for r in read_manifest(root)] == [r.gt_sha256 for r in read_manifest(reference)]
 
 
-def test_failed_sequence_is_recorded_and_retried_alone(captures, tmp_path, capsys):
+def test_failed_sequence_is_recorded_and_retried_alone(reference, captures, tmp_path, capsys):
+    """A corrupt depth file fails its capture's sequences (manifest, log, status, exit 1) and not the others (one
+    of them built from an existing scene folder); once fixed, only ``--retry-failed`` redoes them."""
     shutil.copytree(captures / "tissue", tmp_path / "tissue")
     shutil.copytree(captures / "tissue", tmp_path / "broken")
     (tmp_path / "broken" / "depth.png").write_bytes(b"not a png at all")
     config = base_config(sequences={"per_capture": 1, "frames": 2, "paths": ["scan"]}, variations={})
     config["captures"] = [config["captures"][0],
                           {"name": "broken", "rgb": "broken/rgb.png", "depth": "broken/depth.png",
-                           "camera": "broken/camera.json", "split": "val"}]
+                           "camera": "broken/camera.json", "split": "val"},
+                          {"name": "reused", "scene": {"folder": str(reference / "scenes" / "tissue_000"),
+                                                       "baseline": 0.004}}]
     path = write_config(tmp_path, config)
     root = tmp_path / "root"
     assert run_dataset(path, "-o", root) == 1
@@ -381,17 +385,20 @@ def test_failed_sequence_is_recorded_and_retried_alone(captures, tmp_path, capsy
     assert len(err) == 1 and err[0].startswith("error: 1 sequence(s) failed, first broken_000: mesh: ")
     rows = {r.sequence: r for r in read_manifest(root)}
     assert rows["tissue_000"].status == "done" and rows["broken_000"].status == "failed"
+    assert rows["reused_000"].status == "done" and Dataset(root / "reused_000").baseline == 0.004
     assert rows["broken_000"].error.startswith("mesh: ") and "broken/depth.png" in rows["broken_000"].error
     assert "broken/depth.png" in (root / "logs" / "broken_000.log").read_text()
     assert main(["dataset", "--status", str(root)]) == 0
     status = capsys.readouterr().out
     assert "failed         0      1      1" in status  # train, val, total
+    assert "done           2      0      2" in status
     assert f"broken_000 (val): {rows['broken_000'].error}" in status
-    good = {p: p.stat().st_ino for p in (root / "tissue_000").rglob("*") if p.is_file()}
+    good = {p: p.stat().st_ino for p in root.glob("[tr]*_000/**/*") if p.is_file()}
 
     shutil.copy(captures / "tissue" / "depth.png", tmp_path / "broken" / "depth.png")  # the capture is fixed
     assert run_dataset(path, "-o", root) == 1  # a plain rerun leaves failed sequences alone
-    assert {r.sequence: r.status for r in read_manifest(root)} == {"tissue_000": "done", "broken_000": "failed"}
+    assert {r.sequence: r.status for r in read_manifest(root)} == {"tissue_000": "done", "broken_000": "failed",
+                                                                   "reused_000": "done"}
     assert run_dataset(path, "-o", root, "--retry-failed") == 0
     rows = {r.sequence: r for r in read_manifest(root)}
     assert rows["broken_000"].status == "done" and rows["broken_000"].error == ""
@@ -421,3 +428,17 @@ def test_gallery_renders_in_a_headless_browser_with_every_image(reference, tmp_p
         (copy / "gallery" / "second_000" / "depth.png").unlink()
         browser.open(copy / "index.html")
         assert [i["src"] for i in browser.images() if not i["loaded"]] == ["gallery/second_000/depth.png"]
+
+
+def test_dask_dashboard_is_served_when_asked(captures):
+    import urllib.request
+
+    from rgbd2scene.batch.engine import open_engine
+
+    engine = open_engine(workers=1, dashboard=True)
+    try:
+        assert engine.info.dashboard and engine.info.dashboard in engine.info.describe()
+        with urllib.request.urlopen(engine.info.dashboard, timeout=30) as page:
+            assert page.status == 200 and b"Dask" in page.read()
+    finally:
+        engine.close()

@@ -49,6 +49,7 @@ CONTACT_SHEET = "contact_sheet.png"
 #: Seconds between looks at the frames on disk (the progress bar) and between manifest rewrites.
 POLL_S = 1.0
 MANIFEST_EVERY_S = 5.0
+GALLERY_EVERY_S = 60.0
 #: Dask priorities: finish started sequences before starting new ones.
 PRIORITY = {"mesh": 0, "scene": 1, "render": 2}
 
@@ -229,7 +230,7 @@ class _Driver:
         self.chunks: dict[str, set] = {}
         self.rendered = 0
         self.peaks: list[float] = []
-        self.last_manifest = 0.0
+        self.last_manifest = self.last_gallery = time.perf_counter()
         self.t0 = time.perf_counter()
         self.bar = self._bar() if progress else None
 
@@ -244,6 +245,7 @@ class _Driver:
                     bar_format="{l_bar}{bar}| {n}/{total} frames [{elapsed}<{remaining}{postfix}]")
 
     def say(self, text: str) -> None:
+        """A per-sequence line (with the progress bar only: ``--quiet`` prints none)."""
         if self.bar is not None:
             self.bar.write(text)
 
@@ -366,6 +368,14 @@ class _Driver:
         row.status, row.error = "done", ""
         self.say(f"done    {seq.name} ({seq.split}, {seq.path}, {seq.frames} frames, {row.seconds:.1f} s)")
         self.write_manifest()
+        if time.perf_counter() - self.last_gallery > GALLERY_EVERY_S:
+            self.write_gallery()
+
+    def write_gallery(self) -> None:
+        from rgbd2scene.batch.gallery import write_gallery
+
+        write_gallery(self.root, self.plan, list(self.rows.values()))
+        self.last_gallery = time.perf_counter()
 
     def fail(self, seq: SequencePlan, stage: str, outcome: Outcome) -> None:
         row = self.rows[seq.name]
@@ -414,15 +424,13 @@ def build_dataset(config_path: str | Path, root: str | Path, options: BuildOptio
         write_manifest(root, list(rows.values()))
         todo = [s for s in plan.sequences if rows[s.name].status == "pending"]
         engine = open_engine(options.workers, options.scheduler, options.jobs, options.dashboard)
+        print(f"{root}: {len(plan.sequences)} sequences ({len(todo)} to do), {plan.frames} frames; "
+              f"{engine.info.describe()}", flush=True)
         driver = _Driver(plan, root, engine, rows, options.progress)
-        driver.say(f"{len(plan.sequences)} sequences ({len(todo)} to do), {plan.frames} frames; "
-                   f"{engine.info.describe()}")
         try:
             driver.run(todo)
         finally:
             engine.close()
-        from rgbd2scene.batch.gallery import write_gallery
-
-        write_gallery(root, plan, list(rows.values()))
+        driver.write_gallery()
     return BuildSummary(root, engine.info.describe(), list(rows.values()), driver.rendered,
                         time.perf_counter() - t0, driver.peaks)
