@@ -2,7 +2,7 @@
 """Batch benchmark: frames per hour of ``rgbd2scene dataset`` on a local pool and a local Dask cluster, against
 the same work done by plain stage calls, and the memory of a long sequence.
 
-Usage: ``python benchmarks/bench_batch.py [--quick] [--repeats N] [--out MD]``
+Usage: ``python benchmarks/bench_batch.py [--quick] [--parallel] [--repeats N] [--out MD]``
 
 1. **Throughput** (``2 captures x 2 sequences x 6 frames`` at 256x128, render defaults: 1 spp + OIDN, all
    ground truth): the bundled sample ``data_samples/tissue`` and the TUM office frame from
@@ -18,21 +18,23 @@ Usage: ``python benchmarks/bench_batch.py [--quick] [--repeats N] [--out MD]``
 
    One unit at a time in each, so the difference is the scheduler's overhead. Builds alternate (plain, pool,
    Dask, then the reverse) and the medians over ``--repeats`` rounds are compared; ground-truth checksums must
-   agree between all builds. Then one build each with 2 units at once (``--jobs 2``, ``--workers 2``): the
-   machine has 2 cores, and each Blender worker already uses both.
+   agree between all builds. With ``--parallel``, one more build each with 2 units at once (``--jobs 2``,
+   ``--workers 2``): the machine has 2 cores, and each Blender worker already uses both.
 2. **Memory** (one sequence of 60 frames in chunks of 25, local Dask with one worker, submitted through
    ``--scheduler`` to a cluster this script starts so it can ask the worker afterwards): each chunk's Blender
    worker peak RSS (``ru_maxrss`` from ``wait4``) and the Dask worker process's own peak RSS; then the same
    sequence rendered in one chunk of 60 for comparison.
 
 ``--quick`` (about 3 minutes): one capture, 2 sequences of 3 frames, one round, 10 memory frames in chunks of 4;
-report in ``bench_out/batch/batch.md``. The full run takes about 10 minutes and writes
-``benchmarks/results/batch.md``.
+report in ``bench_out/batch/batch.md``. The full run takes about 10 minutes on an idle 2-core machine (``--parallel``
+adds about 3) and writes ``benchmarks/results/batch.md``. The load average (other processes) is printed with the
+settings: builds alternate so that load changes hit every engine alike, but they do add noise.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import resource
 import shutil
@@ -147,7 +149,7 @@ def throughput(args) -> list[str]:
     for r in range(args.repeats):
         for name in (order if r % 2 == 0 else order[::-1]):
             timed(name, MODES[name], config_path, total, results, checksums)
-    if not args.quick:
+    if args.parallel:
         for name, fn in PARALLEL.items():
             timed(name, fn, config_path, total, results, checksums)
     same = len({tuple(sorted(c.items())) for c in checksums.values()}) == 1
@@ -208,6 +210,7 @@ def memory(args) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="about 3 minutes: smaller builds, one round")
+    ap.add_argument("--parallel", action="store_true", help="also builds with 2 units at once (--jobs 2, --workers 2)")
     ap.add_argument("--repeats", type=int, default=None, help="rounds of the three engines (default 2, quick 1)")
     ap.add_argument("--out", default=None, help="markdown report (default benchmarks/results/batch.md, quick: "
                     "bench_out/batch/batch.md; '' to skip)")
@@ -216,18 +219,19 @@ def main() -> None:
     out = args.out if args.out is not None else str(
         WORK / "batch.md" if args.quick else ROOT / "benchmarks" / "results" / "batch.md")
     versions = software_versions()
-    settings = {"machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores",
+    settings = {"machine": f"{platform.machine()}, {os.cpu_count()} cores",
                 "python": platform.python_version(), "bpy": versions.get("bpy"),
                 "dask": __import__("dask").__version__, "render": f"{SIZE}, 1 spp + OIDN, all ground truth",
                 "second capture": "TUM office frame" if TUM.is_dir() else "bundled sample again",
-                "quick": args.quick}
+                "quick": args.quick, "load average at start": f"{os.getloadavg()[0]:.1f}"}
     print("settings: " + ", ".join(f"{k}: {v}" for k, v in settings.items()), flush=True)
     t0 = time.perf_counter()
     parts = [f"# Batch benchmark (`benchmarks/bench_batch.py{' --quick' if args.quick else ''}`)", "",
              "Settings: " + ", ".join(f"{k}: {v}" for k, v in settings.items()) + ". Method: see the script's "
              "docstring.", ""]
     parts += throughput(args) + [""] + memory(args)
-    parts += ["", f"Benchmark wall time: {time.perf_counter() - t0:.0f} s."]
+    parts += ["", f"Benchmark wall time: {time.perf_counter() - t0:.0f} s; load average at the end "
+              f"{os.getloadavg()[0]:.1f} (1 minute; other processes on this 2-core machine)."]
     text = "\n".join(parts) + "\n"
     print("\n" + text)
     if out:

@@ -257,14 +257,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("dataset", help="batch build: many captures, sequences and variations from one YAML/TOML "
                        "configuration (resumable; local pool or Dask)")
     p.add_argument("config", nargs="?", help="configuration file (.yaml, .yml or .toml; see README)")
-    p.add_argument("-o", "--output", help="build folder ROOT: one dataset folder per sequence, manifest.csv, "
-                   "index.html")
+    p.add_argument("-o", "--output", metavar="ROOT", help="build folder: one dataset folder per sequence, "
+                   "manifest.csv, index.html")
     p.add_argument("--status", metavar="ROOT", help="summarise the build in ROOT (in progress or done) and exit")
-    p.add_argument("--workers", type=int, help="start a local Dask cluster of N worker processes")
+    p.add_argument("--workers", type=int, metavar="N", help="start a local Dask cluster of N worker processes")
     p.add_argument("--scheduler", metavar="ADDRESS", help="submit to an existing Dask scheduler (tcp://host:8786); "
                    "its workers must see ROOT and the captures at the same paths")
-    p.add_argument("--jobs", type=int, default=1, help="units run at once by the local pool (without --workers "
-                   "or --scheduler; default 1)")
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="units run at once by the local pool "
+                   "(without --workers or --scheduler; default 1)")
     p.add_argument("--retry-failed", action="store_true", help="also redo the sequences that failed before")
     p.add_argument("--dashboard", action="store_true", help="serve the Dask dashboard (local cluster: port 8787)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or per-sequence lines")

@@ -185,6 +185,18 @@ def test_missing_file_and_bad_syntax_are_one_line_errors(captures, capsys):
     assert "unknown configuration format" in line
 
 
+@pytest.mark.parametrize("flags, expected", [
+    (["--workers", "0"], "error: --workers: must be at least 1, got 0"),
+    (["--jobs", "0"], "error: --jobs: must be at least 1, got 0"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "error: --workers and --scheduler: give one"),
+    (["--dashboard"], "error: --dashboard: needs Dask"),
+])
+def test_engine_flags_are_checked_before_anything_runs(captures, capsys, flags, expected):
+    assert run_dataset(write_config(captures, base_config()), "-o", captures / "never", *flags) == 2
+    assert capsys.readouterr().err.startswith(expected)
+    assert not (captures / "never").exists()
+
+
 def test_toml_and_yaml_give_the_same_configuration(captures):
     toml = captures / "batch.toml"
     toml.write_text('''seed = 7

@@ -214,6 +214,9 @@ class Variation:
 
 @dataclass
 class BatchConfig:
+    """A validated configuration: the file it came from, the seed, the captures (globs expanded), the sequence
+    settings, the render options (validated) with the keys the file set, and the variations."""
+
     path: Path
     seed: int
     captures: list[Capture]
@@ -222,7 +225,6 @@ class BatchConfig:
     paths: tuple[str, ...]
     render: RenderOptions
     render_keys: dict
-    scene: dict
     variations: dict[str, Variation]
 
     def record(self) -> dict:
@@ -365,7 +367,7 @@ def _resolve(path: Path, raw: ConfigFile) -> BatchConfig:
         if name in PLANNED_SCENE_KEYS:
             raise OptionError(f"variations.{name}", f"set per sequence by {PLANNED_SCENE_KEYS[name]}")
     return BatchConfig(path, raw.seed, captures, raw.sequences.per_capture, raw.sequences.frames,
-                       tuple(raw.sequences.paths), render, render_keys, scene_defaults, variations)
+                       tuple(raw.sequences.paths), render, render_keys, variations)
 
 
 def _variation(name: str, spec: Any, base: Path) -> Variation:

@@ -37,8 +37,6 @@ class LocalEngine:
     """A pool of ``workers`` threads (each drives one unit at a time; Blender runs in its own process)."""
 
     def __init__(self, workers: int = 1):
-        if workers < 1:
-            raise UserError(f"--jobs: must be at least 1, got {workers}")
         self.pool = concurrent.futures.ThreadPoolExecutor(max_workers=workers, thread_name_prefix="rgbd2scene")
         self.info = EngineInfo("local pool", workers)
 
@@ -63,8 +61,6 @@ class DaskEngine:
         self.cluster = None
         self._config = None
         if address is None:
-            if workers is None or workers < 1:
-                raise UserError(f"--workers: must be at least 1, got {workers}")
             # A worker runs one unit at a time, which should use the cores: Dask would start its workers with
             # OMP/MKL/OpenBLAS limited to one thread (measured: the mesh stage 1.8x, the scene stage 1.9x slower)
             import dask
@@ -108,13 +104,23 @@ class DaskEngine:
             self._config.__exit__(None, None, None)
 
 
-def open_engine(workers: int | None = None, scheduler: str | None = None, jobs: int = 1,
-                dashboard: bool = False) -> LocalEngine | DaskEngine:
-    """The engine the command line asks for: ``--scheduler`` > ``--workers`` (local Dask) > local pool."""
+def check_engine(workers: int | None = None, scheduler: str | None = None, jobs: int = 1,
+                 dashboard: bool = False) -> None:
+    """Refuse engine settings that cannot work, before anything starts (one-line :class:`UserError`)."""
     if scheduler is not None and workers is not None:
         raise UserError("--workers and --scheduler: give one (--workers starts a local cluster; --scheduler uses one)")
+    if workers is not None and workers < 1:
+        raise UserError(f"--workers: must be at least 1, got {workers}")
+    if jobs < 1:
+        raise UserError(f"--jobs: must be at least 1, got {jobs}")
+    if dashboard and scheduler is None and workers is None:
+        raise UserError("--dashboard: needs Dask (--workers N or --scheduler ADDRESS)")
+
+
+def open_engine(workers: int | None = None, scheduler: str | None = None, jobs: int = 1,
+                dashboard: bool = False) -> LocalEngine | DaskEngine:
+    """The engine the command line asks for: ``--scheduler`` or ``--workers`` (Dask), else a local pool."""
+    check_engine(workers, scheduler, jobs, dashboard)
     if scheduler is not None or workers is not None:
         return DaskEngine(workers, scheduler, dashboard)
-    if dashboard:
-        raise UserError("--dashboard: needs Dask (--workers N or --scheduler ADDRESS)")
     return LocalEngine(jobs)

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rgbd2scene.batch.config import EXECUTION_KEYS, load_config
-from rgbd2scene.batch.engine import open_engine
+from rgbd2scene.batch.engine import check_engine, open_engine
 from rgbd2scene.batch.manifest import Row, gt_checksum, read_manifest, write_manifest
 from rgbd2scene.batch.plan import Plan, SequencePlan, make_plan
 from rgbd2scene.batch.tasks import Outcome, build_mesh, build_scene, render_chunk
@@ -414,6 +414,7 @@ class _Driver:
 def build_dataset(config_path: str | Path, root: str | Path, options: BuildOptions | None = None) -> BuildSummary:
     """Build (or resume) the batch of ``config_path`` into ``root``; returns the rows and figures."""
     options = options or BuildOptions()
+    check_engine(options.workers, options.scheduler, options.jobs, options.dashboard)
     t0 = time.perf_counter()
     plan = make_plan(load_config(config_path))
     root = ensure_output_dir(root)
