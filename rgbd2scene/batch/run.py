@@ -69,11 +69,16 @@ class BuildOptions:
 
 @dataclass
 class BuildSummary:
+    """A build's rows and figures: frames rendered and wall seconds of this run, the summed seconds of its
+    units (measured where they ran: the rest of the wall time is the driver's and the engine's), and each
+    render chunk's Blender worker peak memory."""
+
     root: Path
     engine: str
     rows: list[Row]
     frames_rendered: int
     seconds: float
+    unit_seconds: float = 0.0
     chunk_peak_rss_mb: list[float] = field(default_factory=list)
 
     def count(self, status: str) -> int:
@@ -229,6 +234,7 @@ class _Driver:
         self.jobs: dict[str, RenderJob] = {}
         self.chunks: dict[str, set] = {}
         self.rendered = 0
+        self.unit_seconds = 0.0
         self.peaks: list[float] = []
         self.last_manifest = self.last_gallery = time.perf_counter()
         self.t0 = time.perf_counter()
@@ -323,6 +329,7 @@ class _Driver:
             outcome = future.result()
         except Exception as exc:  # noqa: BLE001 - the engine lost the unit (a worker died): that unit failed
             outcome = Outcome(False, 0.0, f"{type(exc).__name__}: {exc}".splitlines()[0], repr(exc))
+        self.unit_seconds += outcome.seconds
         if stage == "mesh":
             if outcome.ok:
                 self.mesh_ready(payload, self.root / MESHES / name)
@@ -434,4 +441,4 @@ def build_dataset(config_path: str | Path, root: str | Path, options: BuildOptio
             engine.close()
         driver.write_gallery()
     return BuildSummary(root, engine.info.describe(), list(rows.values()), driver.rendered,
-                        time.perf_counter() - t0, driver.peaks)
+                        time.perf_counter() - t0, driver.unit_seconds, driver.peaks)
