@@ -454,3 +454,46 @@ def test_dask_dashboard_is_served_when_asked(captures):
             assert page.status == 200 and b"Dask" in page.read()
     finally:
         engine.close()
+
+
+def test_a_failed_chunk_fails_its_sequence_only(captures, tmp_path, monkeypatch):
+    """The driver with stub units (no Blender): the first chunk of one sequence fails; its other chunk's result
+    is ignored, the other sequence finishes, the error and the log name the failure."""
+    from types import SimpleNamespace
+
+    from rgbd2scene.batch import run
+    from rgbd2scene.batch.engine import LocalEngine
+    from rgbd2scene.batch.tasks import Outcome
+
+    plan = make_plan(load_config(write_config(captures, base_config(), "stub.yaml")))
+    calls = []
+
+    def fake_job(scene_dir, out, options):
+        return SimpleNamespace(out=Path(out), frames=3, with_gt=True, chunks=lambda: [[0, 1], [2]],
+                               incomplete=lambda frames: [])
+
+    def fake_chunk(job, group):
+        calls.append((job.out.name, group))
+        if job.out.name == "second_000" and group == [0, 1]:
+            return Outcome(False, 0.5, "render worker failed (exit status 1) on frames 0-1", "the whole log")
+        return Outcome(True, 0.5, peak_rss_mb=100.0)
+
+    monkeypatch.setattr(run, "build_mesh", lambda capture, out: Outcome(True, 0.1))
+    monkeypatch.setattr(run, "build_scene", lambda source, out, options: Outcome(True, 0.1))
+    monkeypatch.setattr(run, "_complete", lambda folder: False)
+    monkeypatch.setattr(run, "prepare_render", fake_job)
+    monkeypatch.setattr(run, "render_chunk", fake_chunk)
+    monkeypatch.setattr("rgbd2scene.pictures.contact_sheet.write_frame_sheet", lambda *args: None)
+    rows = run.merge_rows(plan, [], tmp_path, retry_failed=False)
+    engine = LocalEngine(1)
+    driver = run._Driver(plan, tmp_path, engine, rows, progress=False)
+    try:
+        driver.run(plan.sequences)
+    finally:
+        engine.close()
+    assert rows["tissue_000"].status == "done" and rows["tissue_000"].error == ""
+    assert rows["second_000"].status == "failed"
+    assert rows["second_000"].error == "render: render worker failed (exit status 1) on frames 0-1"
+    assert "the whole log" in (tmp_path / "logs" / "second_000.log").read_text()
+    assert driver.unit_seconds > 0 and driver.peaks == [100.0, 100.0]  # the failed sequence's chunks not counted
+    assert {r.sequence: r.status for r in read_manifest(tmp_path)} == {"tissue_000": "done", "second_000": "failed"}

@@ -325,6 +325,8 @@ class _Driver:
 
     def handle(self, future) -> None:
         stage, name, payload = self.pending.pop(future)
+        if stage != "mesh" and self.rows[payload.name].status == "failed":
+            return  # a unit (perhaps cancelled) of a sequence that failed meanwhile
         try:
             outcome = future.result()
         except Exception as exc:  # noqa: BLE001 - the engine lost the unit (a worker died): that unit failed
@@ -333,13 +335,12 @@ class _Driver:
         if stage == "mesh":
             if outcome.ok:
                 self.mesh_ready(payload, self.root / MESHES / name)
-            for seq in payload if not outcome.ok else ():
-                self.fail(seq, stage, outcome)
+            else:
+                for seq in payload:
+                    self.fail(seq, stage, outcome)
             return
         seq = payload
         row = self.rows[seq.name]
-        if row.status == "failed":
-            return  # a unit of a sequence that already failed elsewhere
         row.seconds += outcome.seconds
         if not outcome.ok:
             self.fail(seq, stage, outcome)
@@ -396,8 +397,7 @@ class _Driver:
             f.write(f"{stamp} {stage} failed\n{outcome.log or outcome.error}\n\n")
         self.jobs.pop(seq.name, None)
         for future in self.chunks.pop(seq.name, set()):
-            if future.cancel():
-                self.pending.pop(future, None)
+            future.cancel()  # the ones not started; handle() skips what comes back
         if self.bar is not None:
             self.bar.total -= row.frames - row.frames_done
         self.say(f"failed  {seq.name} ({seq.split}): {row.error}")
