@@ -313,6 +313,8 @@ def test_reference_build_manifest_datasets_and_status(reference, capsys):
         assert scene["scene_options"]["seed"] == row.seed
         assert scene["scene_options"]["light_power_w"] == row.light_power_w
         assert ds.meta["seed"] == row.seed  # the Cycles seed of its RGB noise
+        mesh = reference / "meshes" / row.capture / "mesh.ply"  # the scene shares the capture's mesh files
+        assert (reference / "scenes" / row.sequence / "mesh.ply").stat().st_ino == mesh.stat().st_ino
     assert json.loads((reference / "config.json").read_text())["seed"] == 7
     assert leftovers(reference) == []
     # evaluate reads the ROOT as a batch, one table per split

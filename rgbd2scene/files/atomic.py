@@ -59,6 +59,18 @@ def sweep_temporaries(folder: str | Path) -> int:
     return count
 
 
+def link_or_copy(src: str | Path, dst: str | Path) -> None:
+    """Hard-link ``src`` at ``dst`` (no extra disk space), or copy it where a link cannot be made (another file
+    system). Meant for files that are only ever replaced (atomic writes rename a new file into place, which
+    unlinks rather than changes the shared one), never edited in place."""
+    dst = Path(dst)
+    dst.unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
 def _umask() -> int:
     """The process umask, read without changing it (``/proc``), else by setting and restoring it."""
     with contextlib.suppress(OSError, ValueError), open("/proc/self/status") as f:
