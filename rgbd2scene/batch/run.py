@@ -57,7 +57,8 @@ PRIORITY = {"mesh": 0, "scene": 1, "render": 2}
 @dataclass
 class BuildOptions:
     """How to run a build: ``workers`` starts a local Dask cluster, ``scheduler`` uses an existing one,
-    otherwise a local pool of ``jobs`` threads; ``retry_failed`` also redoes the failed sequences."""
+    otherwise a local pool of ``jobs`` threads; ``retry_failed`` also redoes the failed sequences; ``progress``
+    shows the bar and a line per sequence (and, like ``dashboard``, a first line naming the engine)."""
 
     workers: int | None = None
     scheduler: str | None = None
@@ -432,8 +433,9 @@ def build_dataset(config_path: str | Path, root: str | Path, options: BuildOptio
         write_manifest(root, list(rows.values()))
         todo = [s for s in plan.sequences if rows[s.name].status == "pending"]
         engine = open_engine(options.workers, options.scheduler, options.jobs, options.dashboard)
-        print(f"{root}: {len(plan.sequences)} sequences ({len(todo)} to do), {plan.frames} frames; "
-              f"{engine.info.describe()}", flush=True)
+        if options.progress or options.dashboard:  # the dashboard's address even with --quiet
+            print(f"{root}: {len(plan.sequences)} sequences ({len(todo)} to do), {plan.frames} frames; "
+                  f"{engine.info.describe()}", flush=True)
         driver = _Driver(plan, root, engine, rows, options.progress)
         try:
             driver.run(todo)
