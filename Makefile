@@ -10,13 +10,17 @@ SHELL := /bin/bash
 
 install: $(STAMP)
 
-# open3d needs libusb-1.0 at import time; ELAS (pyelas) is C++ built at install time. Debian-based machines get
-# both from apt.
+# open3d needs libusb-1.0 at import time; ELAS (pyelas) is C++ built at install time; the batch gallery test loads
+# ROOT/index.html in a real headless browser (Debian's chromium, about 30 s to install without the recommended
+# packages). Debian-based machines get all from apt.
 system-deps:
-	@if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0 || ! command -v g++ >/dev/null; then \
-	  echo "installing system packages libusb-1.0-0, g++"; \
+	@if ! ldconfig -p 2>/dev/null | grep -q libusb-1.0.so.0 || ! command -v g++ >/dev/null \
+	    || ! command -v chromium >/dev/null; then \
+	  echo "installing system packages libusb-1.0-0, g++, chromium"; \
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 libegl1 libgl1 libgomp1 g++ >/dev/null; \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libusb-1.0-0 libegl1 libgl1 libgomp1 g++ >/dev/null \
+	  && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends chromium \
+	    fonts-dejavu-core >/dev/null; \
 	fi
 
 $(STAMP): pyproject.toml | system-deps

@@ -110,18 +110,9 @@ def _input_mode(args) -> str:
 
 
 def _intrinsics_and_scale(args):
-    from rgbd2scene.capture.camera import PRESET_DEPTH_SCALE, load_camera_json, preset
+    from rgbd2scene.capture.camera import camera_for
 
-    scale = args.depth_scale
-    if args.camera:
-        intr, json_scale = load_camera_json(args.camera)
-        scale = scale if scale is not None else json_scale
-    else:
-        name = args.preset or "primesense"
-        intr = preset(name)
-        if scale is None and args.preset:
-            scale = PRESET_DEPTH_SCALE.get(name.lower())
-    return intr, scale
+    return camera_for(args.camera, args.preset, args.depth_scale)
 
 
 def _load_captures(args) -> list:
@@ -373,6 +364,32 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+def cmd_dataset(args) -> int:
+    if args.status is not None:
+        if args.config or args.output:
+            raise UserError("dataset --status ROOT: give only the build folder (no CONFIG, no -o)")
+        from rgbd2scene.batch.status import status_report
+
+        print(status_report(args.status))
+        return 0
+    if not args.config or not args.output:
+        raise UserError("dataset: give CONFIG and -o ROOT (or --status ROOT)")
+    from rgbd2scene.batch.run import BuildOptions, build_dataset
+
+    options = BuildOptions(workers=args.workers, scheduler=args.scheduler, jobs=args.jobs,
+                           retry_failed=args.retry_failed, dashboard=args.dashboard, progress=not args.quiet)
+    summary = build_dataset(args.config, args.output, options)
+    print(f"{summary.count('done')} done, {summary.count('failed')} failed, {summary.count('pending')} pending; "
+          f"{summary.frames_rendered} frames rendered in {summary.seconds:.0f} s ({summary.engine}) -> "
+          f"{summary.root}/manifest.csv, {summary.root}/index.html")
+    if summary.failed:
+        first = summary.failed[0]
+        print(f"error: {len(summary.failed)} sequence(s) failed, first {first.sequence}: {first.error} "
+              f"(see {summary.root}/logs/; rerun with --retry-failed)", file=sys.stderr)
+        return 1
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="rgbd2scene", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -398,6 +415,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="skip DATASET/contact_sheet.png (middle frame, all maps)")
     p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("dataset", help="batch build: many captures, sequences and variations from one YAML/TOML "
+                       "configuration (resumable; local pool or Dask)")
+    p.add_argument("config", nargs="?", help="configuration file (.yaml, .yml or .toml; see README)")
+    p.add_argument("-o", "--output", metavar="ROOT", help="build folder: one dataset folder per sequence, "
+                   "manifest.csv, index.html")
+    p.add_argument("--status", metavar="ROOT", help="summarise the build in ROOT (in progress or done) and exit")
+    p.add_argument("--workers", type=int, metavar="N", help="start a local Dask cluster of N worker processes")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="submit to an existing Dask scheduler (tcp://host:8786); "
+                   "its workers must see ROOT and the captures at the same paths")
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="units run at once by the local pool "
+                   "(without --workers or --scheduler; default 1)")
+    p.add_argument("--retry-failed", action="store_true", help="also redo the sequences that failed before")
+    p.add_argument("--dashboard", action="store_true", help="serve the Dask dashboard (local cluster: port 8787)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or per-sequence lines")
+    p.set_defaults(func=cmd_dataset)
 
     p = sub.add_parser("verify", help="check the ground truth of a dataset; non-zero exit when it fails")
     p.add_argument("dataset", help="dataset folder")

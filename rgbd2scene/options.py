@@ -6,8 +6,10 @@ handed to Blender and the records in ``scene.json`` / ``dataset.json`` (:func:`t
 check (:func:`resume_diff` compares the fields marked ``resume=True``).
 
 A field's CLI flag is ``--name-with-dashes`` unless ``flag=`` says otherwise; a boolean that defaults to
-True gets a ``--no-...`` flag. Problems found by ``validate()`` are :class:`OptionError`\\ s naming the
-field, which the CLI reports with the flag and a batch build with the configuration key.
+True gets a ``--no-...`` flag. A field marked ``file=True`` holds a file path, which a configuration file gives
+relative to itself (:func:`from_mapping`'s ``base_dir``). Problems found by ``validate()`` are
+:class:`OptionError`\\ s naming the field, which the CLI reports with the flag and a batch build with the
+configuration key.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import argparse
 import dataclasses
 import typing
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any
 
 
@@ -30,15 +33,16 @@ class OptionError(ValueError):
 
 def option(default: Any = None, help: str = "", *, flag: str | None = None, choices=None,
            parse: Callable[[str], Any] | None = None, resume: bool = False, cli: bool = True,
-           metavar: str | None = None) -> Any:
+           metavar: str | None = None, file: bool = False) -> Any:
     """A dataclass field with what the CLI and the records need to know about it.
 
     ``parse`` turns the command-line (or configuration) text into the value (e.g. ``"512x256"`` -> (512, 256));
     ``resume`` marks settings that must match for a re-run to continue into the same output folder;
-    ``cli=False`` keeps a field out of the command line (set by the program, or by configuration files).
+    ``cli=False`` keeps a field out of the command line (set by the program, or by configuration files);
+    ``file=True`` marks a file path (resolved against a configuration file's folder).
     """
     meta = {"help": help, "flag": flag, "choices": choices, "parse": parse, "resume": resume, "cli": cli,
-            "metavar": metavar}
+            "metavar": metavar, "file": file}
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -110,22 +114,42 @@ def from_args(cls, args: argparse.Namespace, **overrides):
     return cls(**values)
 
 
-def from_mapping(cls, values: Mapping[str, Any], where: str = ""):
-    """The options dataclass from a configuration mapping; unknown keys and bad values are
-    :class:`OptionError`\\ s naming ``where.key``. String values go through the field's ``parse``."""
+def from_mapping(cls, values: Mapping[str, Any], where: str = "", base_dir: str | Path | None = None):
+    """The options dataclass from a configuration mapping (YAML, TOML, JSON).
+
+    Unknown keys, values of the wrong type (checked against the field's annotation with pydantic: ``"0.5"``
+    is read as a float, ``1.5`` is no int) and values outside a field's ``choices`` are
+    :class:`OptionError`\\ s naming ``where.key``. String values go through the field's ``parse`` first;
+    relative paths of ``file=True`` fields are taken relative to ``base_dir`` when given.
+    """
+    from pydantic import TypeAdapter, ValidationError
+
     names = {f.name: f for f in dataclasses.fields(cls)}
     prefix = f"{where}." if where else ""
+    if not isinstance(values, Mapping):
+        raise OptionError(where, f"must be a mapping of {cls.__name__} keys, got {values!r}")
     unknown = sorted(set(values) - set(names))
     if unknown:
         raise OptionError(prefix + unknown[0], f"unknown key (known: {', '.join(sorted(names))})")
+    hints = typing.get_type_hints(cls)
     kwargs = {}
     for key, value in values.items():
-        parse = names[key].metadata.get("parse")
+        meta = names[key].metadata
+        parse = meta.get("parse")
         if parse is not None and isinstance(value, str):
             try:
                 value = parse(value)
             except (ValueError, argparse.ArgumentTypeError) as exc:
                 raise OptionError(prefix + key, str(exc)) from None
+        try:
+            value = TypeAdapter(hints[key]).validate_python(value)
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            raise OptionError(prefix + key, f"{first['msg']}, got {value!r}") from None
+        if meta.get("choices") and value not in meta["choices"]:
+            raise OptionError(prefix + key, f"choose one of {', '.join(map(str, meta['choices']))}, got {value!r}")
+        if meta.get("file") and value is not None and base_dir is not None:
+            value = str(Path(base_dir) / Path(value).expanduser())
         kwargs[key] = value
     return cls(**kwargs)
 

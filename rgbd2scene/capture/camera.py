@@ -141,3 +141,19 @@ def load_camera_json(path: str | Path) -> tuple[Intrinsics, float | None]:
             raise UserError(f"{path}: depth_scale must be positive, got {scale}")
     intr.check(str(path))
     return intr, scale
+
+
+def camera_for(camera_json: str | Path | None = None, preset_name: str | None = None,
+               depth_scale: float | None = None) -> tuple[Intrinsics, float | None]:
+    """Intrinsics and depth scale of a capture: from a camera JSON, else a preset (default ``primesense``).
+
+    An explicit ``depth_scale`` wins over the JSON's ``depth_scale``; a named preset brings its usual scale
+    (5000 for the TUM presets) when none is given.
+    """
+    if camera_json:
+        intr, json_scale = load_camera_json(camera_json)
+        return intr, depth_scale if depth_scale is not None else json_scale
+    name = preset_name or "primesense"
+    if depth_scale is None and preset_name:
+        depth_scale = PRESET_DEPTH_SCALE.get(name.lower())
+    return preset(name), depth_scale

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rgbd2scene.batch.manifest import MANIFEST
 from rgbd2scene.dataset.layout import DATASET_JSON
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
@@ -18,8 +19,6 @@ from rgbd2scene.evaluate.report import SummaryRow, error_map, write_tables
 from rgbd2scene.files.atomic import ensure_output_dir
 from rgbd2scene.files.images import write_image
 
-MANIFEST = "manifest.csv"
-MANIFEST_COLUMNS = ("sequence", "capture", "split", "seed", "path", "frames", "status", "error")
 SINGLE_SPLIT = "all"
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import secrets
 import shutil
 import tempfile
@@ -12,6 +13,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
+#: Names :func:`atomic_path` gives its temporary files: ``.NAME.<8 hex digits><suffix>``.
+TEMPORARY_NAME = re.compile(r"^\..+\.[0-9a-f]{8}(\.\w+)?$")
 
 
 @contextlib.contextmanager
@@ -39,6 +43,32 @@ def atomic_path(path: str | Path, suffix: str | None = None, tmp_dir: str | Path
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def sweep_temporaries(folder: str | Path) -> int:
+    """Remove the temporary files that killed :func:`atomic_path` writers left in ``folder`` (not below it).
+
+    Only call it where no writer can be alive (e.g. under a lock of the whole output); returns the count.
+    """
+    count = 0
+    for path in Path(folder).glob(".*"):
+        if TEMPORARY_NAME.match(path.name) and path.is_file():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                count += 1
+    return count
+
+
+def link_or_copy(src: str | Path, dst: str | Path) -> None:
+    """Hard-link ``src`` at ``dst`` (no extra disk space), or copy it where a link cannot be made (another file
+    system). Meant for files that are only ever replaced (atomic writes rename a new file into place, which
+    unlinks rather than changes the shared one), never edited in place."""
+    dst = Path(dst)
+    dst.unlink(missing_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 def _umask() -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -81,55 +82,72 @@ def _class_map(seg: np.ndarray, table: dict, classes: dict[str, int]) -> np.ndar
     return lut[seg]
 
 
-def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
-    """Contact sheet (RGB uint8) of ``frame``: left/right RGB, then the maps present in the npz files."""
+class Panel(NamedTuple):
+    """One picture of a frame: ``key`` names it (``left_rgb``, ``depth``, ...), ``label`` describes it."""
+
+    key: str
+    image: np.ndarray
+    label: str
+
+
+def frame_panels(root: str | Path, frame: int) -> list[Panel]:
+    """The pictures of ``frame``: left/right RGB, then the left eye's maps present in its npz: depth,
+    disparity, normals, both flows, the instance and class masks with their legends, the flow of moving
+    objects and the occlusion flags."""
     panels = []
     for eye in ds.EYES:
         rgb, _ = ds.read_frame(root, eye, frame, rgb=True)
-        panels.append((rgb, f"{eye} rgb"))
+        panels.append(Panel(f"{eye}_rgb", rgb, f"{eye} rgb"))
     _, gt = ds.read_frame(root, "left", frame, rgb=False)
+    h, w = panels[0].image.shape[:2]
+    legend_h = int(round(CELL_W * h / w))
     if "depth" in gt:
         lo, hi = depth_range(gt["depth"])
-        panels.append((colorize_depth(gt["depth"], lo, hi), f"depth {1000 * lo:.0f}-{1000 * hi:.0f} mm"))
+        panels.append(Panel("depth", colorize_depth(gt["depth"], lo, hi), f"depth {1000 * lo:.0f}-{1000 * hi:.0f} mm"))
     if "disparity" in gt:
         lo, hi = depth_range(gt["disparity"])
-        panels.append((colorize_depth(gt["disparity"], lo, hi), f"disparity {lo:.1f}-{hi:.1f} px"))
+        panels.append(Panel("disparity", colorize_depth(gt["disparity"], lo, hi), f"disparity {lo:.1f}-{hi:.1f} px"))
     if "normals" in gt:
-        panels.append((colorize_normals(gt["normals"]), "normals (camera frame)"))
+        panels.append(Panel("normals", colorize_normals(gt["normals"]), "normals (camera frame)"))
     for key in ("flow_forward", "flow_backward"):
         if key in gt and np.isfinite(gt[key]).any():
             mag = np.hypot(gt[key][..., 0], gt[key][..., 1])
-            panels.append((colorize_flow(gt[key]), f"{key.replace('_', ' ')} max {np.nanmax(mag):.1f} px"))
-    h, w = panels[0][0].shape[:2]
-    cell_h = int(round(CELL_W * h / w))
+            panels.append(Panel(key, colorize_flow(gt[key]), f"{key.replace('_', ' ')} max {np.nanmax(mag):.1f} px"))
     if "segmentation" in gt:
         seg = gt["segmentation"]
         dataset = Dataset(root)
         table, classes = dataset.objects, dataset.classes
-        panels.append((colorize_ids(seg), "segmentation (instances)"))
+        panels.append(Panel("segmentation", colorize_ids(seg), "segmentation (instances)"))
         present = [int(i) for i in np.unique(seg) if i]
-        panels.append((legend_panel([(i, _describe(i, table)) for i in present], CELL_W, cell_h),
-                       "instance ids"))
+        panels.append(Panel("instance_legend", legend_panel([(i, _describe(i, table)) for i in present], CELL_W,
+                                                            legend_h), "instance ids"))
         semantic = _class_map(seg, table, classes)
-        panels.append((colorize_ids(semantic), "classes"))
+        panels.append(Panel("classes", colorize_ids(semantic), "classes"))
         names = {v: k for k, v in classes.items()}
-        panels.append((legend_panel([(c, f"{c}: {names.get(c, '?')}") for c in np.unique(semantic) if c], CELL_W,
-                                    cell_h), "class ids"))
+        panels.append(Panel("class_legend", legend_panel([(c, f"{c}: {names.get(c, '?')}") for c in np.unique(semantic)
+                                                          if c], CELL_W, legend_h), "class ids"))
         moving = [i for i in present if i in table and table[i].moving]
         if moving and "flow_forward" in gt and np.isfinite(gt["flow_forward"]).any():
-            on = np.isin(seg, moving)
-            flow = np.where(on[..., None], gt["flow_forward"], np.nan)
+            flow = np.where(np.isin(seg, moving)[..., None], gt["flow_forward"], np.nan)
             mag = np.hypot(flow[..., 0], flow[..., 1])
             peak = float(np.nanmax(mag)) if np.isfinite(mag).any() else 0.0
-            panels.append((colorize_flow(flow), f"flow of moving objects max {peak:.1f} px"))
+            panels.append(Panel("moving_flow", colorize_flow(flow), f"flow of moving objects max {peak:.1f} px"))
     for key in ("occluded_forward", "occluded_backward"):
         if key in gt:
             img = np.where(gt[key][..., None], np.uint8(255), np.uint8(0)).repeat(3, axis=-1)
-            panels.append((img, f"{key.replace('_', ' ')} ({100 * gt[key].mean():.1f} %)"))
+            panels.append(Panel(key, img, f"{key.replace('_', ' ')} ({100 * gt[key].mean():.1f} %)"))
+    return panels
+
+
+def frame_sheet(root: str | Path, frame: int) -> np.ndarray:
+    """Contact sheet (RGB uint8) of ``frame``: the :func:`frame_panels` in three columns, labelled."""
+    panels = frame_panels(root, frame)
+    h, w = panels[0].image.shape[:2]
+    cell_h = int(round(CELL_W * h / w))
     cols = 3
     rows = (len(panels) + cols - 1) // cols
     sheet = np.full((rows * (cell_h + 4), cols * (CELL_W + 4), 3), BACKGROUND, np.uint8)
-    for i, (img, text) in enumerate(panels):
+    for i, (_, img, text) in enumerate(panels):
         r, c = divmod(i, cols)
         cell = label_panel(fit_cell(img, CELL_W, cell_h), f"{text} (frame {frame})" if i < 2 else text)
         sheet[r * (cell_h + 4):r * (cell_h + 4) + cell_h, c * (CELL_W + 4):c * (CELL_W + 4) + CELL_W] = cell

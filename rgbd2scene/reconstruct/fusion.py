@@ -108,8 +108,13 @@ def estimate_poses(captures: list[Capture], depth_max: float | None = None,
     poses, pairs = [np.eye(4)], []
     for k in range(1, len(captures)):
         K = o3d.core.Tensor(captures[k].intrinsics.K)
-        result = odometry.rgbd_odometry_multi_scale(images[k], images[k - 1], K, o3d.core.Tensor(np.eye(4)),
-                                                    1.0, depth_max, criteria, odometry.Method.Hybrid, loss)
+        try:
+            result = odometry.rgbd_odometry_multi_scale(images[k], images[k - 1], K, o3d.core.Tensor(np.eye(4)),
+                                                        1.0, depth_max, criteria, odometry.Method.Hybrid, loss)
+        except RuntimeError as exc:  # Open3D gives up on a singular system ("tracking failed")
+            reason = str(exc).strip().splitlines()[-1][-80:]
+            raise ValueError(f"RGB-D odometry failed between frames {k - 1} and {k} ({captures[k - 1].rgb_path}, "
+                             f"{captures[k].rgb_path}): {reason}; give the poses") from None
         T_prev_this = result.transformation.numpy()  # maps points of frame k into frame k-1
         pairs.append({"frames": [k - 1, k], "fitness": float(result.fitness),
                       "inlier_rmse": float(result.inlier_rmse)})

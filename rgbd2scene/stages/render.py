@@ -213,23 +213,55 @@ def render_task(scene_dir: Path, out_dir: Path, description: SceneDescription, o
                 start=int(start), end=int(end))
 
 
-def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions | None = None, *,
-                   progress: bool = True, python: str | None = None, **overrides) -> dict:
-    """Render SCENE into DATASET (CONVENTIONS §4); returns a summary dict.
+@dataclass
+class RenderJob:
+    """A validated render of frames [start, end) of a ``frames``-long dataset, ready to run chunk by chunk.
 
-    Parameters
-    ----------
-    options
-        :class:`RenderOptions` (``frames``: dataset length, the first N frames of the camera path;
-        ``size``: (W, H), K follows :meth:`Intrinsics.resized`; ``gt``: ``"all"``, ``"none"`` or a comma
-        list of maps; ``start``/``end``: render only frames [start, end); ``samples``, ``adaptive``,
-        ``denoise``, ``seed``: the RGB render; ``device``, ``threads``; ``chunk``: frames per worker
-        process). Keyword ``overrides`` replace single fields (``render_dataset(s, d, samples=4)``).
-    progress
-        Show a tqdm bar.
+    ``description`` is the scene model as rendered (:func:`render_model`); ``todo`` the frames not finished
+    when the job was prepared. Each chunk is one worker :class:`Task` (:meth:`task`), which any engine runs
+    through :func:`rgbd2scene.stages.blender.run_task`.
     """
-    t_start = time.perf_counter()
-    options = replace(options or RenderOptions(), **overrides)
+
+    scene_dir: Path
+    out: Path
+    description: SceneDescription
+    options: RenderOptions
+    frames: int
+    start: int
+    end: int
+    todo: list[int]
+
+    @property
+    def with_gt(self) -> bool:
+        return bool(self.options.maps)
+
+    @property
+    def with_geometry(self) -> bool:
+        """A deforming scene's frames are complete with their ``geometry/`` file too."""
+        return self.with_gt and self.description.deforming
+
+    def chunks(self) -> list[list[int]]:
+        """The unfinished frames in groups of at most ``options.chunk``."""
+        size = self.options.chunk
+        return [self.todo[i:i + size] for i in range(0, len(self.todo), size)]
+
+    def task(self, group: list[int]) -> Task:
+        """The worker task of one chunk (it renders [first, last] and skips frames already finished)."""
+        return render_task(self.scene_dir, self.out, self.description, self.options, self.frames, group[0],
+                           group[-1] + 1)
+
+    def incomplete(self, group: list[int]) -> list[int]:
+        """Frames of ``group`` still missing a file."""
+        return [i for i in group if not ds.frame_done(self.out, i, gt=self.with_gt, geometry=self.with_geometry)]
+
+
+def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions,
+                   python: str | None = None) -> RenderJob:
+    """Validate a render, write ``DATASET/dataset.json`` (or check that an existing one allows resuming),
+    sweep what dead runs left in the folder and list the frames still to render.
+
+    Bad options, scene folders and output folders are one-line :class:`UserError`\\ s naming the flag or file.
+    """
     try:
         options = options.validated()
     except OptionError as exc:
@@ -255,22 +287,38 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     else:
         ds.write_dataset_json(out, info)
     ds.sweep_dead_runs(out)
+    job = RenderJob(scene_dir, out, description, options, n, s, e, [])
+    job.todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=job.with_gt, geometry=job.with_geometry)]
+    return job
 
-    with_gt = bool(options.maps)
-    geometry = with_gt and description.deforming
-    todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=with_gt, geometry=geometry)]
-    skipped = (e - s) - len(todo)
-    chunks = [todo[i:i + options.chunk] for i in range(0, len(todo), options.chunk)]
+
+def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions | None = None, *,
+                   progress: bool = True, python: str | None = None, **overrides) -> dict:
+    """Render SCENE into DATASET (CONVENTIONS §4); returns a summary dict.
+
+    Parameters
+    ----------
+    options
+        :class:`RenderOptions` (``frames``: dataset length, the first N frames of the camera path;
+        ``size``: (W, H), K follows :meth:`Intrinsics.resized`; ``gt``: ``"all"``, ``"none"`` or a comma
+        list of maps; ``start``/``end``: render only frames [start, end); ``samples``, ``adaptive``,
+        ``denoise``, ``seed``: the RGB render; ``device``, ``threads``; ``chunk``: frames per worker
+        process). Keyword ``overrides`` replace single fields (``render_dataset(s, d, samples=4)``).
+    progress
+        Show a tqdm bar.
+    """
+    t_start = time.perf_counter()
+    job = prepare_render(scene_dir, out_dir, replace(options or RenderOptions(), **overrides), python)
+    chunks = job.chunks()
     stats: dict[int, dict] = {}
     starts: list[float] = []
-    bar = _progress_bar(len(todo), progress)
+    bar = _progress_bar(len(job.todo), progress)
     try:
         for group in chunks:
-            task = render_task(scene_dir, out, description, options, n, group[0], group[-1] + 1)
-            _run_chunk(task, set(group), stats, starts, bar, python)
-            missing = [i for i in group if not ds.frame_done(out, i, gt=with_gt, geometry=geometry)]
+            _run_chunk(job.task(group), set(group), stats, starts, bar, python)
+            missing = job.incomplete(group)
             if missing:
-                raise RenderError(f"render worker finished but frames {missing} of {out} are incomplete")
+                raise RenderError(f"render worker finished but frames {missing} of {job.out} are incomplete")
     finally:
         if bar is not None:
             bar.close()
@@ -282,8 +330,8 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
         vals = [d[key] for d in done if key in d]
         return sum(vals) / len(vals) if vals else None
 
-    return {"dataset": str(out), "frames": n, "range": [s, e], "rendered": len(done), "skipped": skipped,
-            "chunks": len(chunks), "seconds": wall,
+    return {"dataset": str(job.out), "frames": job.frames, "range": [job.start, job.end], "rendered": len(done),
+            "skipped": (job.end - job.start) - len(job.todo), "chunks": len(chunks), "seconds": wall,
             "seconds_per_frame": mean("done"), "cpu_seconds_per_frame": mean("cpu"),
             "rgb_seconds_per_frame": mean("rgb"), "gt_seconds_per_frame": mean("gt"),
             "wall_seconds_per_frame": wall / len(done) if done else None,
@@ -324,5 +372,5 @@ def _run_chunk(task: Task, group: set[int], stats: dict, starts: list, bar, pyth
     run_task(task, on_event, python=python, what="render worker", where=where)
 
 
-__all__ = ["RenderOptions", "render_dataset", "RenderError", "load_scene", "dataset_info", "parse_size", "render_model",
-           "render_task"]
+__all__ = ["RenderOptions", "RenderJob", "prepare_render", "render_dataset", "RenderError", "load_scene",
+           "dataset_info", "parse_size", "render_model", "render_task"]

@@ -7,7 +7,6 @@ in ``scene.json`` (written last: a scene folder with a scene.json is complete).
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,7 +15,7 @@ import numpy as np
 
 from rgbd2scene.capture.camera import Intrinsics, load_camera_json
 from rgbd2scene.errors import UserError
-from rgbd2scene.files.atomic import write_json
+from rgbd2scene.files.atomic import link_or_copy, write_json
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
@@ -51,10 +50,10 @@ class SceneOptions:
     size: tuple[int, int] = option(DEFAULT_SIZE, "endoscope image size WxH", parse=parse_size, metavar="WxH")
     fov_x_deg: float = option(DEFAULT_FOV_X_DEG, "horizontal field of view, degrees", flag="--fov")
     scope_camera: str | None = option(None, "endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, "
-                                      "height); overrides --size and --fov")
+                                      "height); overrides --size and --fov", file=True)
     baseline: float = option(DEFAULT_BASELINE, "stereo baseline, metres")
     path: str = option("scan", "generated camera path", choices=tuple(PATH_GENERATORS))
-    path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)")
+    path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)", file=True)
     frames: int = option(60, "frames in the path")
     fps: float = option(30.0, "frames per second")
     standoff: float = option(DEFAULT_STANDOFF, "distance to the tissue, metres")
@@ -202,7 +201,9 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
 def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
     """Mesh (with UVs and texture) and scene.json record of a folder made by ``rgbd2scene mesh``.
 
-    When ``out_dir`` differs, the folder's files are copied there so the scene folder stands alone.
+    When ``out_dir`` differs, the folder's files are hard-linked there (copied across file systems), so the
+    scene folder stands alone without taking the mesh's disk space again (a batch build makes one scene per
+    sequence from each capture's mesh folder: about 60 MB saved per scene for a 640x480 capture).
     """
 
     src = Path(mesh_dir)
@@ -224,6 +225,6 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
     if src.resolve() != out_dir.resolve():
         for name in folder.MESH_FOLDER_FILES:
             if (src / name).is_file():
-                shutil.copy2(src / name, out_dir / name)
+                link_or_copy(src / name, out_dir / name)
     record.pop("scene", None)
     return mesh, record
