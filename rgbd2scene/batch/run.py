@@ -37,6 +37,7 @@ from rgbd2scene.batch.manifest import Row, gt_checksum, read_manifest, write_man
 from rgbd2scene.batch.plan import Plan, SequencePlan, make_plan
 from rgbd2scene.batch.tasks import Outcome, build_mesh, build_scene, render_chunk
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.dataset.layout import lock_held
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import ensure_output_dir, sweep_temporaries, write_json
 from rgbd2scene.scene.folder import SCENE_JSON
@@ -115,17 +116,7 @@ def root_lock(root: Path):
 
 def build_running(root: Path) -> bool:
     """Whether a build holds ``ROOT/.lock`` now."""
-    try:
-        fd = os.open(root / LOCK, os.O_RDWR)
-    except OSError:
-        return False
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        return True
-    finally:
-        os.close(fd)
-    return False
+    return lock_held(root / LOCK)
 
 
 def _flatten(value, prefix: str = "") -> dict:

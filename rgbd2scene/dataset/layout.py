@@ -202,10 +202,10 @@ def scratch_dir(root: str | Path) -> Iterator[Path]:
             work.rmdir()  # only when no other run's folder is left in it
 
 
-def _alive(folder: Path) -> bool:
-    """Whether a live run holds the scratch folder's lock."""
+def lock_held(path: str | Path) -> bool:
+    """Whether a live process holds an exclusive ``flock`` on the lock file ``path`` (False when it is absent)."""
     try:
-        fd = os.open(folder / "lock", os.O_RDWR)
+        fd = os.open(path, os.O_RDWR)
     except OSError:
         return False
     try:
@@ -234,7 +234,7 @@ def sweep_dead_runs(root: str | Path) -> int:
     work = root / WORK_DIR
     if work.is_dir():
         for entry in work.iterdir():
-            if entry.is_dir() and not _alive(entry):
+            if entry.is_dir() and not lock_held(entry / "lock"):
                 count += sum(1 for q in entry.rglob("*") if q.is_file())
                 shutil.rmtree(entry, ignore_errors=True)
             elif entry.is_file():  # a file of the older flat layout
