@@ -52,10 +52,8 @@ from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
-from rgbd2scene.stages.render import RenderOptions
+from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
 
-#: Pixel filter width of the data render: small enough that its one sample is the pixel centre.
-DATA_FILTER_WIDTH = 0.01
 GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
 #: Pass name in the EXR channel names (``<ViewLayer>.<pass>.<channel>``) -> our pass key.
@@ -197,9 +195,9 @@ class Renderer:
     def configure_data(self) -> None:
         sc, cy, vl, p = self.scene, self.scene.cycles, self.view_layer, self.passes
         _apply([(sc.render, "use_persistent_data", False),  # history-independent ground truth (see __init__)
-                (cy, "samples", 1), (cy, "use_adaptive_sampling", False),
-                (cy, "filter_width", DATA_FILTER_WIDTH),
-                (cy, "max_bounces", 0), (cy, "use_denoising", False), (cy, "seed", 0),
+                (cy, "samples", GT_SAMPLES), (cy, "use_adaptive_sampling", False),
+                (cy, "filter_width", GT_FILTER_WIDTH_PX),
+                (cy, "max_bounces", GT_MAX_BOUNCES), (cy, "use_denoising", False), (cy, "seed", 0),
                 (cy, "use_animated_seed", False), (vl, "material_override", self.gt_material),
                 (vl, "use_pass_z", True), (vl, "use_pass_normal", "normal" in p),
                 (vl, "use_pass_vector", "vector" in p), (vl, "use_pass_object_index", "index" in p)])

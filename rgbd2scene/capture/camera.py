@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -109,12 +108,9 @@ def load_camera_json(path: str | Path) -> tuple[Intrinsics, float | None]:
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: camera file not found")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{path}: not a readable JSON camera file ({exc})") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: camera JSON must be an object")
+    from rgbd2scene.files.atomic import read_json_object  # files/ imports the reconstruction: not at load
+
+    data = read_json_object(path, "JSON camera file")
     try:
         width, height = int(data["width"]), int(data["height"])
         if "intrinsic_matrix" in data:

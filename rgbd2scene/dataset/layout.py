@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import json
 import os
 import secrets
 import shutil
@@ -29,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rgbd2scene.errors import UserError
-from rgbd2scene.files.atomic import atomic_path, write_json
+from rgbd2scene.files.atomic import atomic_path, read_json_object, write_json
 from rgbd2scene.files.images import read_image, write_image
 
 EYES = ("left", "right")
@@ -170,13 +169,7 @@ def read_dataset_json(root: str | Path) -> dict:
     path = Path(root) / DATASET_JSON
     if not path.is_file():
         raise UserError(f"{path}: not found (not a dataset folder made by 'rgbd2scene render')")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{path}: not readable JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise UserError(f"{path}: must hold a JSON object")
-    return meta
+    return read_json_object(path, "dataset.json")
 
 
 @contextlib.contextmanager

@@ -131,6 +131,21 @@ def write_text(path: str | Path, text: str) -> None:
     write_bytes(path, text.encode())
 
 
+def read_json_object(path: str | Path, what: str = "JSON file") -> dict:
+    """The JSON object in ``path``; a one-line ``UserError`` naming the file when it is unreadable, not JSON
+    or not an object (``what`` says what the file should be)."""
+    from rgbd2scene.errors import UserError
+
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"{path}: not a readable {what} ({exc})") from None
+    if not isinstance(data, dict):
+        raise UserError(f"{path}: a {what} must hold a JSON object")
+    return data
+
+
 def write_json(path: str | Path, obj) -> None:
     write_text(path, json.dumps(obj, indent=2, default=_json_default) + "\n")
 

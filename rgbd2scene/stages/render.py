@@ -20,7 +20,7 @@ from pathlib import Path
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import RenderError, UserError
-from rgbd2scene.files.atomic import ensure_output_dir
+from rgbd2scene.files.atomic import ensure_output_dir, read_json_object
 from rgbd2scene.groundtruth.passes import parse_maps
 from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
 from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
@@ -36,8 +36,11 @@ DEFAULT_SAMPLES = 1
 DEFAULT_DENOISE = "oidn"
 DEFAULT_CHUNK = 25
 #: The data render of the ground truth (render/frames.py implements it; recorded in dataset.json).
-GT_RENDER = {"samples": 1, "filter_width_px": 0.01, "max_bounces": 0, "material_override": "black emission",
-             "passes": ["Depth", "Normal", "Vector", "IndexOB"], "exr": "32-bit float, multilayer"}
+#: One sample through the pixel centre (a pixel filter this narrow keeps it there), no bounces.
+GT_SAMPLES, GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES = 1, 0.01, 0
+GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_bounces": GT_MAX_BOUNCES,
+             "material_override": "black emission", "passes": ["Depth", "Normal", "Vector", "IndexOB"],
+             "exr": "32-bit float, multilayer", "persistent_data": False}
 #: dataset.json entries that must match for a re-run to resume into the same folder (besides the
 #: render options marked ``resume`` and the scene's hash).
 RESUME_KEYS = ("width", "height", "frames", "baseline", "K")
@@ -125,12 +128,7 @@ def load_scene(scene_dir: str | Path, python: str | None = None) -> tuple[Path, 
     for name in (SCENE_BLEND, SCENE_JSON):
         if not (scene_dir / name).is_file():
             raise UserError(f"{scene_dir}: not a scene folder made by 'rgbd2scene scene' ({name} is missing)")
-    try:
-        record = json.loads((scene_dir / SCENE_JSON).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{scene_dir / SCENE_JSON}: not readable JSON ({exc})") from None
-    if not isinstance(record, dict):
-        raise UserError(f"{scene_dir / SCENE_JSON}: must hold a JSON object")
+    record = read_json_object(scene_dir / SCENE_JSON, "scene.json")
     try:
         if isinstance(record.get("scene"), dict):
             description = SceneDescription.from_dict(record["scene"])

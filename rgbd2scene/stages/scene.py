@@ -6,7 +6,6 @@ in ``scene.json`` (written last: a scene folder with a scene.json is complete).
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +14,7 @@ import numpy as np
 
 from rgbd2scene.capture.camera import Intrinsics, load_camera_json
 from rgbd2scene.errors import UserError
-from rgbd2scene.files.atomic import link_or_copy, write_json
+from rgbd2scene.files.atomic import link_or_copy, read_json_object, write_json
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import raycaster
@@ -210,10 +209,7 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
     record_path = src / folder.SCENE_JSON
     if not record_path.is_file() or not (src / folder.MESH).is_file():
         raise UserError(f"{src}: not a mesh folder made by 'rgbd2scene mesh' (needs scene.json and mesh.ply)")
-    try:
-        record = json.loads(record_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{record_path}: not valid JSON ({exc})") from None
+    record = read_json_object(record_path, "scene.json")
     # from here on out_dir is a scene being built: it must not look complete until scene.json is rewritten
     (out_dir / folder.SCENE_JSON).unlink(missing_ok=True)
     mesh = read_ply(src / folder.MESH)
