@@ -13,28 +13,36 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.conventions import orient_normals_to_camera, pixel_rays
+from rgbd2scene.conventions import invert_pose, orient_normals_to_camera, pixel_rays, transform_points
 from rgbd2scene.reconstruct.mesh import vertex_normals
 
 _INVALID = np.uint32(0xFFFFFFFF)
 
 
 class Raycaster:
-    """A triangle mesh ready for ray casting; see :func:`raycaster`."""
+    """A triangle mesh ready for ray casting; see :func:`raycaster`.
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray):
+    ``subset`` (indices into ``triangles``) casts against those triangles only, e.g. the ones a camera can
+    see (:func:`triangles_in_view`): the acceleration structure is built over far fewer triangles, while
+    triangle ids, barycentric coordinates and vertex normals stay those of the whole mesh.
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, subset: np.ndarray | None = None):
         import open3d as o3d  # imported here: the CLI starts faster without it
 
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
         if self.triangles.size and (self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices)):
             raise ValueError("triangle indices out of range of the vertex array")
+        self._subset = None if subset is None else np.asarray(subset, dtype=np.int64).ravel()
+        cast = self.triangles if self._subset is None else self.triangles[self._subset]
         self._o3d = o3d
         self._scene = o3d.t.geometry.RaycastingScene()
-        if len(self.triangles):
+        self._empty = not len(cast)
+        if not self._empty:
             self._scene.add_triangles(
                 o3d.core.Tensor(self.vertices.astype(np.float32)),
-                o3d.core.Tensor(self.triangles.astype(np.uint32)),
+                o3d.core.Tensor(cast.astype(np.uint32)),
             )
         self._vertex_normals: np.ndarray | None = None
         self._ray_cache: dict = {}
@@ -56,7 +64,7 @@ class Raycaster:
         o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
         rays = np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
         shape = rays.shape[:-1]
-        if rays.size == 0 or not len(self.triangles):
+        if rays.size == 0 or self._empty:
             return {"t": np.full(shape, np.nan), "triangle_ids": np.full(shape, -1, np.int64),
                     "uvs": np.full(shape + (2,), np.nan), "face_normals": np.full(shape + (3,), np.nan)}
         out = self._scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays.reshape(-1, 6))))
@@ -65,6 +73,8 @@ class Raycaster:
         hit = (prim != _INVALID) & np.isfinite(t)
         t[~hit] = np.nan
         ids = np.where(hit, prim.astype(np.int64), -1)
+        if self._subset is not None:
+            ids[hit] = self._subset[ids[hit]]
         uvs = out["primitive_uvs"].numpy().astype(np.float64).reshape(shape + (2,))
         uvs[~hit] = np.nan
         fn = out["primitive_normals"].numpy().astype(np.float64).reshape(shape + (3,))
@@ -149,6 +159,42 @@ class Raycaster:
         T = np.asarray(T_world_cam, dtype=np.float64)
         t = self.cast_rays(T[..., :3, 3], T[..., :3, 2])["t"]
         return float(t) if T.ndim == 2 else t
+
+
+def triangles_in_view(vertices: np.ndarray, triangles: np.ndarray, K: np.ndarray, width: int, height: int,
+                      poses: list[np.ndarray], margin_px: float = 1.0) -> np.ndarray:
+    """Indices of the triangles that may meet the view frustum of any of the cameras ``poses``.
+
+    A triangle is left out only when all three corners lie outside one plane of a camera's frustum (behind
+    the camera, or beyond one image edge, ``margin_px`` outside the outermost pixel centres): such a
+    triangle cannot meet a ray of that camera through the image, nor a segment from its centre to a point
+    that projects into the image. A cast against the rest hits exactly what a cast against the whole mesh
+    hits, for those cameras.
+
+    Parameters
+    ----------
+    vertices : (N, 3) world points; triangles : (M, 3) indices.
+    K : (3, 3) intrinsics of a width x height image; poses : camera-to-world (4, 4) poses (OpenCV axes).
+
+    Returns
+    -------
+    (m,) int64 indices into ``triangles``, ascending.
+    """
+    tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    K = np.asarray(K, dtype=np.float64)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    lo, hi_u, hi_v = -0.5 - margin_px, width - 0.5 + margin_px, height - 0.5 + margin_px
+    keep = np.zeros(len(tri), bool)
+    for T in poses:
+        x, y, z = transform_points(invert_pose(np.asarray(T, dtype=np.float64)), vertices).T
+        # one bit per frustum plane; u = fx x / z + cx >= lo  <=>  fx x + (cx - lo) z >= 0 for z > 0
+        code = ((z <= 0).astype(np.uint8)
+                | ((fx * x + (cx - lo) * z < 0) << 1).astype(np.uint8)
+                | ((fx * x + (cx - hi_u) * z > 0) << 2).astype(np.uint8)
+                | ((fy * y + (cy - lo) * z < 0) << 3).astype(np.uint8)
+                | ((fy * y + (cy - hi_v) * z > 0) << 4).astype(np.uint8))
+        keep |= (code[tri[:, 0]] & code[tri[:, 1]] & code[tri[:, 2]]) == 0
+    return np.flatnonzero(keep)
 
 
 def raycaster(vertices: np.ndarray, triangles: np.ndarray) -> Raycaster:

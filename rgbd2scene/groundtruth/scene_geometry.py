@@ -19,7 +19,7 @@ import numpy as np
 
 from rgbd2scene.conventions import invert_pose, project, transform_points
 from rgbd2scene.files.meshio import read_ply
-from rgbd2scene.groundtruth.raycast import Raycaster
+from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
 
@@ -44,7 +44,7 @@ class SceneGeometry:
     ----------
     description : the scene model.
     scene_dir : the scene folder holding each part's geometry file.
-    cache : how many frames' ray-casting scenes to keep (consecutive frames reuse them).
+    cache : how many ray-casting scenes (one per frame and view) to keep: consecutive frames reuse them.
     """
 
     def __init__(self, description: SceneDescription, scene_dir: str | Path, cache: int = 3):
@@ -62,7 +62,7 @@ class SceneGeometry:
         self.triangles = np.concatenate([m.triangles + o for m, o in zip(self.meshes, offsets[:-1], strict=True)])
         self.triangle_ids = np.concatenate([np.full(len(m.triangles), m.part.id, np.uint16) for m in self.meshes])
         self.static = not any(m.part.moving for m in self.meshes)
-        self._cache: OrderedDict[int, Raycaster] = OrderedDict()
+        self._cache: OrderedDict[tuple, Raycaster] = OrderedDict()
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
 
@@ -94,11 +94,27 @@ class SceneGeometry:
         """(instance id, part index) of the deforming parts (their vertices go to ``DATASET/geometry``)."""
         return [(m.part.id, i) for i, m in enumerate(self.meshes) if m.part.deformation is not None]
 
-    def raycaster(self, frame: int) -> Raycaster:
-        key = 0 if self.static else int(frame)
+    def raycaster(self, frame: int, K: np.ndarray | None = None, width: int = 0, height: int = 0,
+                  T_world_cam: np.ndarray | None = None) -> Raycaster:
+        """The scene at ``frame`` ready for ray casting from the camera ``T_world_cam`` (K, width, height).
+
+        When that camera is one of the model's eyes at ``frame``, only the triangles the two eyes can see
+        are cast against (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`: the same hits, and a
+        few thousand triangles instead of the whole deforming tissue to build an acceleration structure
+        over, every frame); otherwise, or without a camera, the whole scene.
+        """
+        eyes = [self.description.camera_pose(frame, eye) for eye in ("left", "right")]
+        culled = T_world_cam is not None and any(np.array_equal(T_world_cam, e) for e in eyes)
+        key: tuple = (0 if self.static else int(frame),)
+        if culled:
+            key += (int(width), int(height), np.asarray(K, dtype=np.float64).tobytes())
+            if self.static:  # the camera moves: the view changes with the frame
+                key += (int(frame),)
         rc = self._cache.get(key)
         if rc is None:
-            rc = Raycaster(self.vertices(frame), self.triangles)
+            vertices = self.vertices(frame)
+            subset = triangles_in_view(vertices, self.triangles, K, width, height, eyes) if culled else None
+            rc = Raycaster(vertices, self.triangles, subset)
             self._cache[key] = rc
             while len(self._cache) > self._cache_size:
                 self._cache.popitem(last=False)
@@ -109,7 +125,8 @@ class SceneGeometry:
              normals: str = "smooth") -> dict[str, np.ndarray]:
         """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``) plus ``instance_ids``
         (H, W) uint16 (0 on a miss)."""
-        hit = self.raycaster(frame).cast(K, width, height, T_world_cam, normals=normals, with_uvs=True)
+        rc = self.raycaster(frame, K, width, height, T_world_cam)
+        hit = rc.cast(K, width, height, T_world_cam, normals=normals, with_uvs=True)
         tri = hit["triangle_ids"]
         hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids[np.maximum(tri, 0)], 0).astype(np.uint16)
         return hit
@@ -117,14 +134,22 @@ class SceneGeometry:
     def moved_points(self, triangle_ids: np.ndarray, uvs: np.ndarray, frame: int) -> np.ndarray:
         """World positions at ``frame`` of surface points given by triangle and barycentric (u, v) (as
         :meth:`cast` reports them at any frame); NaN where ``triangle_ids`` < 0."""
+        return self.follow(triangle_ids, uvs)(frame)
+
+    def follow(self, triangle_ids: np.ndarray, uvs: np.ndarray):
+        """``frame -> (..., 3)`` world positions of the surface points (triangle, barycentric (u, v)) at
+        that frame, NaN where ``triangle_ids`` < 0: :meth:`moved_points` for several frames, the corner
+        indices and weights gathered once."""
         tri = np.asarray(triangle_ids)
-        out = np.full(tri.shape + (3,), np.nan)
-        hit = tri >= 0
-        if hit.any():
-            corners = self.vertices(frame)[self.triangles[tri[hit]]]  # (n, 3 corners, 3)
-            u, v = uvs[hit][:, 0:1], uvs[hit][:, 1:2]
-            out[hit] = (1.0 - u - v) * corners[:, 0] + u * corners[:, 1] + v * corners[:, 2]
-        return out
+        corners = self.triangles[np.maximum(tri, 0)]  # (..., 3) vertex indices
+        u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
+        weights = (1.0 - u - v, u, v)
+
+        def at(frame: int) -> np.ndarray:
+            vertices = self.vertices(frame)
+            return sum(w * vertices[corners[..., k]] for k, w in enumerate(weights))
+
+        return at
 
     def hidden(self, points: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int,
                frame: int) -> np.ndarray:
@@ -132,20 +157,19 @@ class SceneGeometry:
         outside the image (or behind the camera), or another surface of that frame lies in front of it."""
         p = np.asarray(points, dtype=np.float64)
         valid = np.all(np.isfinite(p), axis=-1)
-        out = np.zeros(p.shape[:-1], bool)
         if not valid.any():
-            return out
-        cam = transform_points(invert_pose(T_world_cam), p[valid])
-        u, v = project(cam, K)
+            return valid
+        u, v = project(transform_points(invert_pose(T_world_cam), p), K)
         with np.errstate(invalid="ignore"):
             inside = (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
         centre = np.asarray(T_world_cam, dtype=np.float64)[:3, 3]
-        t = self.raycaster(frame).cast_rays(centre, p[valid] - centre)["t"]  # 1 at the point itself
+        # only points that project into the image are cast at: the segment to such a point lies in the
+        # camera's view (the others are hidden anyway, and a NaN ray has no defined hit)
+        directions = np.where(inside[..., None], p - centre, (0.0, 0.0, 1.0))
+        t = self.raycaster(frame, K, width, height, T_world_cam).cast_rays(centre, directions)["t"]
         with np.errstate(invalid="ignore"):
-            blocked = t < 1.0 - OCCLUSION_REL
-        out[valid] = ~inside | blocked
-        return out
-
+            blocked = t < 1.0 - OCCLUSION_REL  # t = 1 at the point itself
+        return valid & (~inside | blocked)
 
 def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, K: np.ndarray, width: int,
                    height: int) -> dict[str, np.ndarray]:
@@ -159,11 +183,12 @@ def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, K
     description = geometry.description
     hit = geometry.cast(frame, K, description.camera_pose(frame, eye), width, height, normals="none")
     surface = hit["triangle_ids"] >= 0
+    moved_to = geometry.follow(hit["triangle_ids"], hit["uvs"])
     out = {}
     for key, other in (("occluded_forward", frame + 1), ("occluded_backward", frame - 1)):
         if not 0 <= other < frames:
             out[key] = surface.copy()
             continue
-        moved = geometry.moved_points(hit["triangle_ids"], hit["uvs"], other)
+        moved = moved_to(other)
         out[key] = geometry.hidden(moved, K, description.camera_pose(other, eye), width, height, other) & surface
     return out

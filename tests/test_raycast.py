@@ -1,0 +1,76 @@
+"""Ray casting the model: casting only the triangles in view gives the hits of the whole mesh."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.files.meshio import write_ply
+from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
+from rgbd2scene.groundtruth.scene_geometry import SceneGeometry
+from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.scene.deformation import Deformation
+from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
+from rgbd2scene.scene.paths import CameraPath, look_at
+from rgbd2scene.scene.rig import StereoRig
+
+INTR = Intrinsics(48, 32, 40.0, 40.0, 23.5, 15.5)
+
+
+def _wavy_grid(n: int = 121, half: float = 0.2) -> Mesh:
+    """A bumpy surface much larger than the camera's view (z about 0.1 m, facing the origin)."""
+    xs = np.linspace(-half, half, n)
+    x, y = np.meshgrid(xs, xs)
+    z = 0.1 + 0.01 * np.sin(40 * x) * np.cos(30 * y)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    tris = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
+    return Mesh(vertices=np.stack([x, y, z], -1).reshape(-1, 3), triangles=tris.astype(np.int32),
+                vertex_colors=np.full((n * n, 3), 150, np.uint8))
+
+
+def _poses() -> list[np.ndarray]:
+    return [look_at(np.array([0.03 * i, -0.02, 0.0]), np.array([0.03 * i + 0.01, 0.0, 0.1])) for i in range(3)]
+
+
+def test_casting_the_triangles_in_view_hits_what_the_whole_mesh_hits():
+    mesh = _wavy_grid()
+    full = Raycaster(mesh.vertices, mesh.triangles)
+    for pose in _poses():
+        subset = triangles_in_view(mesh.vertices, mesh.triangles, INTR.K, INTR.width, INTR.height, [pose])
+        assert 0 < len(subset) < 0.2 * len(mesh.triangles)  # the view is a small part of the surface
+        culled = Raycaster(mesh.vertices, mesh.triangles, subset)
+        a = full.cast(INTR.K, INTR.width, INTR.height, pose, normals="smooth", with_uvs=True)
+        b = culled.cast(INTR.K, INTR.width, INTR.height, pose, normals="smooth", with_uvs=True)
+        assert (a["triangle_ids"] >= 0).all()
+        for key in ("triangle_ids", "depth", "uvs", "normals_cam"):  # ids of the whole mesh, its vertex normals
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_a_triangle_across_the_view_is_kept_and_one_behind_the_camera_is_not():
+    # corners far outside the image on all sides, the triangle itself covering the view
+    vertices = np.array([[-1.0, -1.0, 0.1], [1.0, -1.0, 0.1], [0.0, 1.0, 0.1],
+                         [0.0, 0.0, -0.1], [0.01, 0.0, -0.1], [0.0, 0.01, -0.1]])
+    triangles = np.array([[0, 1, 2], [3, 4, 5]])
+    kept = triangles_in_view(vertices, triangles, INTR.K, INTR.width, INTR.height, [np.eye(4)])
+    np.testing.assert_array_equal(kept, [0])
+
+
+def test_scene_geometry_casts_from_its_eyes_as_from_the_whole_scene(tmp_path):
+    mesh = _wavy_grid()
+    write_ply(tmp_path / "mesh.ply", mesh)
+    tissue = tissue_object("as_captured", texture=None)
+    tissue.parts[0].deformation = Deformation.preset("breathing", amplitude_m=0.004, frequency_hz=1.0,
+                                                     extent_m=0.05, centre=(0.03, 0.0, 0.1))
+    description = SceneDescription(StereoRig(INTR, 0.004, clip_start=0.001, clip_end=2.0),
+                                   CameraPath(np.stack(_poses()), fps=10.0, kind="test"), Light(), [tissue])
+    geometry = SceneGeometry(description, tmp_path)
+    for frame in range(3):
+        whole = Raycaster(geometry.vertices(frame), geometry.triangles)
+        for eye in ("left", "right"):
+            T = description.camera_pose(frame, eye)
+            a = whole.cast(INTR.K, INTR.width, INTR.height, T, normals="smooth", with_uvs=True)
+            b = geometry.cast(frame, INTR.K, T, INTR.width, INTR.height)
+            for key in ("triangle_ids", "depth", "uvs", "normals_cam"):
+                np.testing.assert_array_equal(a[key], b[key], err_msg=f"{key}, frame {frame}, {eye}")
+    assert len(geometry._cache) <= 3
