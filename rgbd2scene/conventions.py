@@ -64,9 +64,25 @@ def project(points_cam: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return u, v
 
 
+def rotate(R: np.ndarray, vectors: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
+    """``vectors @ R.T (+ offset)`` for vectors (..., 3), float64.
+
+    Written out per component: numpy's matmul with an inner dimension of 3 is 3-4 times slower on
+    images and meshes (and spends more CPU than it takes wall time).
+    """
+    v = np.asarray(vectors, dtype=np.float64)
+    R = np.asarray(R, dtype=np.float64)
+    out = np.empty(v.shape, dtype=np.float64)
+    for i in range(3):
+        row = v[..., 0] * R[i, 0] + v[..., 1] * R[i, 1] + v[..., 2] * R[i, 2]
+        out[..., i] = row if offset is None else row + offset[i]
+    return out
+
+
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 4x4 rigid transform to points of shape (..., 3)."""
-    return points @ T[:3, :3].T + T[:3, 3]
+    T = np.asarray(T, dtype=np.float64)
+    return rotate(T[:3, :3], points, T[:3, 3])
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:

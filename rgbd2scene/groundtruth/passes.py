@@ -20,7 +20,13 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from rgbd2scene.conventions import disparity_from_depth, flow_from_blender_vector, orient_normals_to_camera, pixel_rays
+from rgbd2scene.conventions import (
+    disparity_from_depth,
+    flow_from_blender_vector,
+    orient_normals_to_camera,
+    pixel_rays,
+    rotate,
+)
 from rgbd2scene.groundtruth.schema import MAPS, surface_mask
 
 #: The per-pixel maps a dataset can hold (the per-frame matrices K, T_world_cam, object_ids and
@@ -79,7 +85,7 @@ def normals_to_camera(normal_world: np.ndarray, R_world_cam: np.ndarray, K: np.n
     n = np.asarray(normal_world, dtype=np.float64)
     h, w = n.shape[:2]
     R_cam_world = np.asarray(R_world_cam, dtype=np.float64)[:3, :3].T
-    n_cam = n @ R_cam_world.T
+    n_cam = rotate(R_cam_world, n)
     length = np.linalg.norm(n_cam, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         n_cam = np.where(length > 1e-12, n_cam / length, np.nan)

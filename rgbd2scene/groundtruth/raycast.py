@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.conventions import invert_pose, orient_normals_to_camera, pixel_rays, transform_points
+from rgbd2scene.conventions import invert_pose, orient_normals_to_camera, pixel_rays, rotate, transform_points
 from rgbd2scene.reconstruct.mesh import vertex_normals
 
 _INVALID = np.uint32(0xFFFFFFFF)
@@ -81,6 +81,18 @@ class Raycaster:
         fn[~hit] = np.nan
         return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn}
 
+    def blocked(self, origins: np.ndarray, directions: np.ndarray, t_max: float) -> np.ndarray:
+        """Bool (...): a surface lies on each ray (..., 3) before ``t_max`` (units of the direction's
+        length); an any-hit query, cheaper than :meth:`cast_rays`."""
+        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
+        rays = np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
+        shape = rays.shape[:-1]
+        if rays.size == 0 or self._empty:
+            return np.zeros(shape, bool)
+        hit = self._scene.test_occlusions(self._o3d.core.Tensor(np.ascontiguousarray(rays.reshape(-1, 6))),
+                                          tnear=0.0, tfar=float(t_max))
+        return hit.numpy().astype(bool).reshape(shape)
+
     def smooth_normals(self, triangle_ids: np.ndarray, uvs: np.ndarray) -> np.ndarray:
         """Interpolated (then normalised) angle-weighted vertex normals at hits, world frame.
 
@@ -132,16 +144,16 @@ class Raycaster:
         T = np.asarray(T_world_cam, dtype=np.float64)
         R, c = T[:3, :3], T[:3, 3]
         rays_cam = self._rays_cam(K, width, height)  # unit z: t_hit is planar depth
-        hit = self.cast_rays(c, rays_cam @ R.T)
+        hit = self.cast_rays(c, rotate(R, rays_cam))
         result = {"depth": hit["t"].astype(np.float32), "triangle_ids": hit["triangle_ids"]}
         if normals != "none":
-            face_cam = hit["face_normals"] @ R  # world -> camera: R^T n, row-wise
+            face_cam = rotate(R.T, hit["face_normals"])  # world -> camera: R^T n
             face_dot = np.sum(face_cam * rays_cam, axis=-1, keepdims=True)
             side = np.where(face_dot > 0, -1.0, 1.0)  # which side of the triangle the camera sees
             if normals == "face":
                 n = face_cam * side
             elif normals == "smooth":
-                n = self.smooth_normals(hit["triangle_ids"], hit["uvs"]) @ R * side
+                n = rotate(R.T, self.smooth_normals(hit["triangle_ids"], hit["uvs"])) * side
                 n = orient_normals_to_camera(n, rays_cam)
                 result["face_normals_cam"] = (face_cam * side).astype(np.float32)
             else:

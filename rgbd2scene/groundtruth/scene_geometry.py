@@ -166,9 +166,8 @@ class SceneGeometry:
         # only points that project into the image are cast at: the segment to such a point lies in the
         # camera's view (the others are hidden anyway, and a NaN ray has no defined hit)
         directions = np.where(inside[..., None], p - centre, (0.0, 0.0, 1.0))
-        t = self.raycaster(frame, K, width, height, T_world_cam).cast_rays(centre, directions)["t"]
-        with np.errstate(invalid="ignore"):
-            blocked = t < 1.0 - OCCLUSION_REL  # t = 1 at the point itself
+        rc = self.raycaster(frame, K, width, height, T_world_cam)
+        blocked = rc.blocked(centre, directions, 1.0 - OCCLUSION_REL)  # t = 1 at the point itself
         return valid & (~inside | blocked)
 
 def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, K: np.ndarray, width: int,
