@@ -26,12 +26,19 @@ The passes become the section-3 maps in :func:`rgbd2scene.groundtruth.gt_from_pa
 by :mod:`rgbd2scene.dataset` (atomic). Temporary files live in the run's own scratch folder
 ``DATASET/.work/<run>/`` (locked while the run lives) and are removed.
 
+The data render syncs only what the frame needs: a Mask modifier (off in RGB renders) keeps, per part,
+the triangles the two eyes can see and every triangle sharing a vertex with one
+(:meth:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry.view_support`), so every hit and every smooth
+normal is the whole mesh's and the passes are the same bit for bit (``tests/test_motion.py``), while the
+endoscope's view holds about 1 % of a capture's mesh: Cycles syncs and builds a BVH over that instead of
+600k triangles, twice per frame (the Vector pass makes each eye's render sync the scene again).
+
 Cost (2 cores, 512x256, the bundled sample's 307k-vertex mesh, wet-tissue material, defaults 1 spp + OIDN):
-RGB about 1.8 s per stereo frame; the ground truth adds about 0.16 s (data render with its BVH rebuilds,
-EXR read, conversion, npz): see benchmarks/results/render.md. To keep it there: all RGB renders of a chunk run first,
-then all data renders (switching configuration per frame made Cycles rebuild its scene twice per
-frame), persistent data is on, settings are only assigned when they change, and frame i's passes are
-converted and compressed in a thread while frame i+1's data render runs.
+see benchmarks/results/render.md and render_motion.md. To keep it low: all RGB renders of a chunk run
+first, then all data renders (switching configuration per frame made Cycles rebuild its scene twice per
+frame), persistent data is on for the RGB renders, settings are only assigned when they change, and while
+Blender renders frame i's passes one thread computes what the scene model gives of frame i (occlusion
+maps, deformed vertices) and another converts and compresses frame i-1's passes.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ import os
 import resource
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -63,10 +71,23 @@ DENOISERS = {"none": None, "oidn": "OPENIMAGEDENOISE", "optix": "OPTIX"}
 #: How far (matrix entries, metres for translations) the blend's keyed camera may be from the model's pose:
 #: Blender keys in float32 (measured 4e-7).
 POSE_TOLERANCE = 1e-5
+#: Vertex group and Mask modifier that cut a part down to what a data render needs (``Renderer.mask_views``).
+VIEW_MASK = "rgbd2scene_in_view"
 
 
 class WorkerError(RuntimeError):
     pass
+
+
+@dataclass
+class ViewMask:
+    """The Mask modifier and vertex group of one part's object (``part``: its index in the scene geometry)
+    and the vertex indices the group holds."""
+
+    part: int
+    group: object
+    modifier: object
+    kept: list[int] = field(default_factory=list)
 
 
 # --- Blender set-up --------------------------------------------------------------------------------------
@@ -169,8 +190,40 @@ class Renderer:
         self.images_at_start = {img.name for img in bpy.data.images}
         self.work = scratch
         # anything but the camera moves: occlusion maps and deformed vertices from the model's own geometry
-        moving = any(part.moving for _, part in description.parts())
-        self.geometry = SceneGeometry(description, scene_dir) if moving and self.maps else None
+        self.moving = any(part.moving for _, part in description.parts())
+        # culling needs the parts' geometry files (a scene folder may hold only its .blend: rendered whole)
+        cull = bool(options.view_culling) and all((Path(scene_dir) / p.geometry).is_file()
+                                                  for _, p in description.parts())
+        self.geometry = SceneGeometry(description, scene_dir) if self.maps and (self.moving or cull) else None
+        self.view_masks = self._add_view_masks() if self.maps and cull else []
+
+    def _add_view_masks(self) -> list[ViewMask]:
+        """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group
+        on each part's object, so that data renders sync only what the frame's eyes need."""
+        by_id = {o.pass_index: o for o in self.scene.objects if o.type == "MESH"}
+        out = []
+        for index, mesh in enumerate(self.geometry.meshes):
+            obj = by_id.get(mesh.part.id)
+            if obj is None or len(obj.data.vertices) != len(mesh.vertices):
+                continue  # not built from the part's geometry file as it is: rendered whole
+            group = obj.vertex_groups.new(name=VIEW_MASK)
+            modifier = obj.modifiers.new(VIEW_MASK, "MASK")
+            modifier.vertex_group = group.name
+            modifier.show_render = modifier.show_viewport = False
+            obj.modifiers.move(len(obj.modifiers) - 1, 0)
+            out.append(ViewMask(index, group, modifier))
+        return out
+
+    def mask_views(self, index: int) -> None:
+        """Keep, in the data render of frame ``index``, only the vertices its two eyes need
+        (:meth:`SceneGeometry.view_support`: the passes are those of the whole scene, bit for bit)."""
+        intr = self.rig.intrinsics
+        for mask in self.view_masks:
+            keep = self.geometry.view_support(mask.part, index, self.K, intr.width, intr.height).tolist()
+            if mask.kept:
+                mask.group.remove(mask.kept)
+            mask.group.add(keep, 1.0, "REPLACE")
+            mask.kept = keep
 
     # -- configurations --
     # Only changed values are assigned: any assignment tags Blender data as updated, and with persistent
@@ -188,6 +241,7 @@ class Renderer:
                 (vl, "use_pass_object_index", False)])
         if self.denoiser:
             _apply([(cy, "denoiser", self.denoiser)])
+        _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
         s = sc.render.image_settings
         _apply([(s, "media_type", "IMAGE"), (s, "file_format", "PNG"), (s, "color_mode", "RGB"),
                 (s, "color_depth", "8"), (s, "views_format", "INDIVIDUAL")])
@@ -200,7 +254,8 @@ class Renderer:
                 (cy, "max_bounces", GT_MAX_BOUNCES), (cy, "use_denoising", False), (cy, "seed", 0),
                 (cy, "use_animated_seed", False), (vl, "material_override", self.gt_material),
                 (vl, "use_pass_z", True), (vl, "use_pass_normal", "normal" in p),
-                (vl, "use_pass_vector", "vector" in p), (vl, "use_pass_object_index", "index" in p)])
+                (vl, "use_pass_vector", "vector" in p), (vl, "use_pass_object_index", "index" in p)]
+               + [(mask.modifier, "show_render", True) for mask in self.view_masks])
         s = sc.render.image_settings
         _apply([(s, "media_type", "MULTI_LAYER_IMAGE"), (s, "file_format", "OPEN_EXR_MULTILAYER"),
                 (s, "color_depth", "32"),  # half floats round depth by up to 0.03 mm
@@ -229,14 +284,28 @@ class Renderer:
         """The data render of the current frame (Blender side): EXR files; poses and tracked objects from
         the model."""
         self.configure_data()
+        self.mask_views(index)
         files = self._render(self.work / f"{ds.frame_name(index)}_data", ".exr")
         poses = {eye: self.description.camera_pose(index, eye) for eye in VIEWS}
         ids, obj_poses = self.description.tracked_poses(index)
         return {"index": index, "files": files, "poses": poses, "object_ids": ids, "object_poses": obj_poses}
 
-    def write_gt(self, job: dict) -> None:
-        """Passes -> ground truth -> npz of both eyes (plus occlusion maps and the frame's deformed vertices
-        when anything but the camera moves); removes the EXRs. No ``bpy``: runs in a thread."""
+    def model_maps(self, index: int) -> dict:
+        """What the scene model alone gives of frame ``index`` when anything but the camera moves: per eye
+        its occlusion maps, and ``"geometry"``, the deformed parts' vertices. No ``bpy`` and no passes: runs
+        in a thread while Blender renders. Empty for a static scene."""
+        if not self.moving:
+            return {}
+        intr = self.rig.intrinsics
+        out: dict = {eye: occlusion_maps(self.geometry, index, self.frames, eye, self.K, intr.width, intr.height)
+                     for eye in VIEWS}
+        out["geometry"] = {f"vertices_{pid}": self.geometry.part_vertices(i, index).astype(np.float32)
+                           for pid, i in self.geometry.deformed()}
+        return out
+
+    def write_gt(self, job: dict, model: Future) -> None:
+        """Passes -> ground truth -> npz of both eyes, with ``model`` (:meth:`model_maps` of the frame) added;
+        removes the EXRs. No ``bpy``: runs in a thread."""
         index = job["index"]
         try:
             for eye, path in job["files"].items():
@@ -246,23 +315,15 @@ class Renderer:
                                     first=index == 0, last=index == self.frames - 1,
                                     object_ids=job["object_ids"], object_poses=job["object_poses"],
                                     maps=self.maps)
-                if self.geometry is not None:
-                    intr = self.rig.intrinsics
-                    surface = np.isfinite(gt.get("depth", depth_from_pass(passes["depth"])))
-                    for key, flags in occlusion_maps(self.geometry, index, self.frames, eye, self.K, intr.width,
-                                                     intr.height).items():
-                        gt[key] = flags & surface
+                surface = np.isfinite(gt.get("depth", depth_from_pass(passes["depth"])))
+                for key, flags in model.result().get(eye, {}).items():
+                    gt[key] = flags & surface
                 ds.write_gt(ds.frame_paths(self.out_dir, eye, index).gt, gt, scratch=self.work)
-            if self.geometry is not None and self.geometry.deformed():
-                vertices = {f"vertices_{pid}": self.geometry.part_vertices(i, index).astype(np.float32)
-                            for pid, i in self.geometry.deformed()}
-                ds.write_gt(ds.geometry_path(self.out_dir, index), vertices, scratch=self.work)
+            if model.result().get("geometry"):
+                ds.write_gt(ds.geometry_path(self.out_dir, index), model.result()["geometry"], scratch=self.work)
         finally:
             for path in job["files"].values():
                 path.unlink(missing_ok=True)
-
-    def render_gt(self, index: int) -> None:
-        self.write_gt(self.render_data(index))
 
     def free_images(self) -> None:
         """Remove image datablocks that appeared while rendering (memory)."""
@@ -386,18 +447,20 @@ def render_task(bpy, task: Task, say) -> None:
                 say(frame_line(index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
             else:
                 say(frame_line(index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
-        # The data phase is pipelined: frame i's passes are converted and compressed in a thread while
-        # Blender renders frame i+1 (the data render leaves a core idle: BVH builds, 1 sample).
+        # The data phase is pipelined: while Blender renders frame i's passes, one thread computes what the
+        # model alone gives of frame i (occlusion maps, deformed vertices) and another converts and compresses
+        # frame i-1's passes (the data render leaves a core idle: scene sync, BVH builds, 1 sample).
         t_mark, c_mark = time.perf_counter(), _cpu_s()
-        with ThreadPoolExecutor(max_workers=1) as pool:
+        with ThreadPoolExecutor(max_workers=1) as pool, ThreadPoolExecutor(max_workers=1) as model_pool:
             pending: list[tuple[int, Future]] = []
             for index in need_gt + [None]:
                 if index is not None:
+                    model = model_pool.submit(renderer.model_maps, index)
                     renderer.scene.frame_set(index)
                     _check_pose(renderer.scene, renderer.camera, description, index)
                     job = renderer.render_data(index)
                     renderer.free_images()
-                    pending.append((index, pool.submit(renderer.write_gt, job)))
+                    pending.append((index, pool.submit(renderer.write_gt, job, model)))
                 while pending and (index is None or len(pending) > 1):
                     done_index, future = pending.pop(0)
                     future.result()

@@ -225,3 +225,22 @@ def test_moving_object_pose_flow_and_occlusion(sliding):
         assert not gt["occluded_forward"][on_square].any()  # the square itself stays in view
     report = verify_dataset(out, progress=False)
     assert report.ok, [r for r in report.results if r.status == "fail"]
+
+
+@pytest.mark.parametrize("fixture, beyond_view", [("breathing", True), ("sliding", False)])
+def test_data_renders_of_what_is_in_view_equal_those_of_the_whole_scene(fixture, beyond_view, request, tmp_path):
+    """The data render syncs only the triangles the eyes see and their neighbours (view culling): every
+    ground-truth array is the same, bit for bit, as with the whole scene synced."""
+    scene, out, description = request.getfixturevalue(fixture)
+    geometry = SceneGeometry(description, scene)
+    support = geometry.view_support(0, 1, INTR.K, INTR.width, INTR.height)
+    assert (len(support) < len(geometry.meshes[0].vertices)) == beyond_view  # breathing: a grid wider than the view
+    whole = tmp_path / "whole"
+    render_dataset(scene, whole, samples=1, denoise="none", progress=False, view_culling=False)
+    for eye in ("left", "right"):
+        for f in range(FRAMES):
+            _, culled = ds.read_frame(out, eye, f, rgb=False)
+            _, reference = ds.read_frame(whole, eye, f, rgb=False)
+            assert culled.keys() == reference.keys()
+            for key in reference:
+                np.testing.assert_array_equal(culled[key], reference[key], err_msg=f"{eye} {f} {key}")

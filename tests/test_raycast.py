@@ -74,3 +74,21 @@ def test_scene_geometry_casts_from_its_eyes_as_from_the_whole_scene(tmp_path):
             for key in ("triangle_ids", "depth", "uvs", "normals_cam"):
                 np.testing.assert_array_equal(a[key], b[key], err_msg=f"{key}, frame {frame}, {eye}")
     assert len(geometry._cache) <= 3
+
+
+def test_view_support_keeps_every_triangle_around_what_is_in_view(tmp_path):
+    mesh = _wavy_grid()
+    write_ply(tmp_path / "mesh.ply", mesh)
+    description = SceneDescription(StereoRig(INTR, 0.004, clip_start=0.001, clip_end=2.0),
+                                   CameraPath(np.stack(_poses()), fps=10.0, kind="test"), Light(),
+                                   [tissue_object("as_captured", texture=None)])
+    geometry = SceneGeometry(description, tmp_path)
+    tri = geometry.meshes[0].triangles
+    for frame in range(3):
+        kept = np.zeros(len(mesh.vertices), bool)
+        kept[geometry.view_support(0, frame, INTR.K, INTR.width, INTR.height)] = True
+        assert 0 < kept.sum() < 0.2 * len(kept)
+        eyes = [description.camera_pose(frame, eye) for eye in ("left", "right")]
+        in_view = tri[triangles_in_view(geometry.vertices(frame), tri, INTR.K, INTR.width, INTR.height, eyes)]
+        touching = np.isin(tri, in_view).any(axis=1)  # triangles sharing a vertex with one in view
+        assert kept[tri[touching]].all()

@@ -11,6 +11,7 @@ frame's vertices.
 
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,13 +59,14 @@ class SceneGeometry:
             if part.deformation is not None:
                 normals, basis = rest_normals(vertices, triangles), part.deformation.basis(vertices)
             self.meshes.append(_PartMesh(part, vertices, triangles, normals, basis))
-        offsets = np.cumsum([0] + [len(m.vertices) for m in self.meshes])
+        offsets = self._offsets = np.cumsum([0] + [len(m.vertices) for m in self.meshes])
         self.triangles = np.concatenate([m.triangles + o for m, o in zip(self.meshes, offsets[:-1], strict=True)])
         self.triangle_ids = np.concatenate([np.full(len(m.triangles), m.part.id, np.uint16) for m in self.meshes])
         self.static = not any(m.part.moving for m in self.meshes)
         self._cache: OrderedDict[tuple, Raycaster] = OrderedDict()
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
+        self._lock = threading.RLock()  # the render worker asks from two threads
 
     def part_vertices(self, index: int, frame: int) -> np.ndarray:
         """World-frame vertices (N, 3) float64 of the ``index``-th part at ``frame``.
@@ -82,13 +84,14 @@ class SceneGeometry:
     def vertices(self, frame: int) -> np.ndarray:
         """World-frame vertices of every part at ``frame``, concatenated in model order (N, 3) float64."""
         key = 0 if self.static else int(frame)
-        out = self._vertices.get(key)
-        if out is None:
-            out = np.concatenate([self.part_vertices(i, frame) for i in range(len(self.meshes))])
-            self._vertices[key] = out
-            while len(self._vertices) > self._cache_size:
-                self._vertices.popitem(last=False)
-        return out
+        with self._lock:
+            out = self._vertices.get(key)
+            if out is None:
+                out = np.concatenate([self.part_vertices(i, frame) for i in range(len(self.meshes))])
+                self._vertices[key] = out
+                while len(self._vertices) > self._cache_size:
+                    self._vertices.popitem(last=False)
+            return out
 
     def deformed(self) -> list[tuple[int, int]]:
         """(instance id, part index) of the deforming parts (their vertices go to ``DATASET/geometry``)."""
@@ -110,16 +113,35 @@ class SceneGeometry:
             key += (int(width), int(height), np.asarray(K, dtype=np.float64).tobytes())
             if self.static:  # the camera moves: the view changes with the frame
                 key += (int(frame),)
-        rc = self._cache.get(key)
-        if rc is None:
-            vertices = self.vertices(frame)
-            subset = triangles_in_view(vertices, self.triangles, K, width, height, eyes) if culled else None
-            rc = Raycaster(vertices, self.triangles, subset)
-            self._cache[key] = rc
-            while len(self._cache) > self._cache_size:
-                self._cache.popitem(last=False)
-        self._cache.move_to_end(key)
-        return rc
+        with self._lock:
+            rc = self._cache.get(key)
+            if rc is None:
+                vertices = self.vertices(frame)
+                subset = triangles_in_view(vertices, self.triangles, K, width, height, eyes) if culled else None
+                rc = Raycaster(vertices, self.triangles, subset)
+                self._cache[key] = rc
+                while len(self._cache) > self._cache_size:
+                    self._cache.popitem(last=False)
+            self._cache.move_to_end(key)
+            return rc
+
+    def view_support(self, index: int, frame: int, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes needs.
+
+        Those of its triangles in view (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`) and of
+        every triangle sharing a vertex with one: each vertex in view keeps all its triangles, so its smooth
+        normal, and every hit, are those of the whole mesh. A render of only these (the data render masks
+        the rest) gives the same passes, bit for bit, for a small part of the cost of syncing and building
+        a BVH over the whole tissue.
+        """
+        m = self.meshes[index]
+        vertices = self.vertices(frame)[self._offsets[index]:self._offsets[index + 1]]
+        eyes = [self.description.camera_pose(frame, eye) for eye in ("left", "right")]
+        seen = np.zeros(len(vertices), bool)
+        seen[m.triangles[triangles_in_view(vertices, m.triangles, K, width, height, eyes)]] = True
+        keep = np.zeros(len(vertices), bool)
+        keep[m.triangles[seen[m.triangles].any(axis=1)]] = True
+        return np.flatnonzero(keep)
 
     def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int,
              normals: str = "smooth") -> dict[str, np.ndarray]:

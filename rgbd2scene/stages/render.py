@@ -81,6 +81,8 @@ class RenderOptions:
     seed: int = option(0, "Cycles seed (animated per frame)", resume=True)
     persistent_data: bool = option(True, "keep Cycles' scene data (BVH) between the renders of a chunk",
                                    cli=False)
+    view_culling: bool = option(True, "data renders sync only the triangles the frame's eyes see and their "
+                                "neighbours (the same passes, bit for bit; off: the whole scene)", cli=False)
 
     def validated(self) -> RenderOptions:
         """A normalised copy (map list, upper-case device, lower-case denoiser); :class:`OptionError` if bad."""
