@@ -24,7 +24,7 @@ from rgbd2scene.reconstruct.fill import (
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, hole_copies
-from rgbd2scene.reconstruct.fill.policy import choose_smooth_fill, highlights
+from rgbd2scene.reconstruct.fill.policy import choose_smooth_fill
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -442,32 +442,3 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     assert np.abs(res.depth[mask] - curved[mask]).mean() < 0.5 * np.abs(harmonic[mask] - curved[mask]).mean()
     # no room for a copy: the harmonic fill, as for a noisy sensor
     assert choose_smooth_fill(np.where(mask, np.nan, curved), mask, np.zeros((H, W), bool)) == "harmonic"
-
-
-def test_highlight_holes_are_not_colour_guided():
-    """Two wide holes in one capture: a step edge that the colour follows (the colour-guided mean is
-    better there) and a highlight, white and unlike its rim, where only the biharmonic fill is used."""
-    truth, rgb = step_scene(box_cols=(90, 160))
-    hole_step = disc(60, 90, 16)  # across the box's left edge: the colour edge is the depth edge
-    hole_lit = disc(60, 40, 16) & ~hole_step  # on the far wall, under a highlight
-    rgb = rgb.copy()
-    rgb[hole_lit] = (250, 250, 245)
-    depth = np.where(hole_step | hole_lit, np.nan, truth).astype(np.float32)
-    labels, _ = components(hole_step | hole_lit)
-    lit = highlights(rgb, labels)
-    assert lit[hole_lit].all() and not lit[hole_step].any()
-    res = fill_depth(depth, rgb, "auto")
-    rows = res.stats["auto_pixels"].get("background", 0)  # a few short runs across the step: shadows
-    assert rows < 10 and res.stats["auto_pixels"]["colorization"] == int(hole_step.sum()) - rows
-    assert res.stats["auto_pixels"]["biharmonic"] == int((hole_step | hole_lit).sum()) - rows
-    bih = fill_biharmonic(depth)
-    np.testing.assert_allclose(res.depth[hole_lit], bih[hole_lit], rtol=1e-5)
-    colour = fill_colorization(depth, rgb)
-    err = {name: np.abs(out[hole_step] - truth[hole_step]).mean() for name, out in
-           (("auto", res.depth), ("biharmonic", bih))}
-    assert err["auto"] < 0.8 * err["biharmonic"]  # the colour guidance helps across the step
-    lit_err = {name: np.abs(out[hole_lit] - truth[hole_lit]).mean() for name, out in
-               (("auto", res.depth), ("colour", colour))}
-    assert lit_err["auto"] < 0.5 * lit_err["colour"]  # and would hurt under the highlight
-    with pytest.raises(ValueError, match="RGB is 10x10"):
-        highlights(np.zeros((10, 10, 3), np.uint8), labels)

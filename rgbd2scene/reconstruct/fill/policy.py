@@ -31,15 +31,8 @@ What ``auto`` does
    above 2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic
    alone without RGB). Neither wins everywhere (colour edges follow depth edges in rooms, not on
    textured or specular tissue), and a self-validation on copies of the holes could not tell them apart
-   (below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
+   (3. below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
    better, on every family but two: specular highlights and the bundled sample's own shadows.
-   **Highlights** (:func:`highlights`: at least half of a hole's pixels bright, HSV value >= 0.8, and
-   unsaturated, <= 0.3) get the biharmonic fill alone: their colour is the light's, uniform and unlike
-   any of the hole's rim, and the colour-guided fill spreads one rim value over them. On the tuning
-   split this took the worst specular row from 3.3 to 1.2 times the best plain solver (specular family
-   geometric mean 1.42 -> 1.13, with 3. below). The benchmark makes its specular masks from the same kind of pixels, so
-   it checks the filling given a correct recognition; the bundled sample's own specular holes are
-   ray-cast and independent (1.01 either way).
 3. **Narrow holes without a step**: a harmonic or a biharmonic fill, whichever had the smaller error on
    copies of these holes laid onto valid depth nearby (:func:`choose_smooth_fill`,
    :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`: each hole shifted by its own size, up to
@@ -48,11 +41,16 @@ What ``auto`` does
    depth itself decides rather than the sensor setting. The choice is made once per image, on the
    copies of all narrow holes pooled: noise is the sensor's, the same across the image, and choosing
    per hole (each hole's error pulled towards the image's by 200 px' worth) did worse on the tuning
-   split (geometric mean over its rows 1.077 against 1.072). Copies did not help elsewhere: choosing
-   among colorization, biharmonic, harmonic and their mean per hole on copies made the tuning split
-   worse (1.30 against 1.12), since a copy sees neither the hole's colour (a highlight's) nor what
-   made the hole (holes sit at depth edges and dark or glancing surfaces, copies on plain surface), and
-   it doubled the time. Without a copy that fits, harmonic (the earlier rule).
+   split. On the tuning split the choice is about neutral (geometric mean over its rows 1.114 against
+   1.118 with harmonic always); it is meant for noise-free depth, which that split lacks. Without a
+   copy that fits, harmonic (the earlier rule). Tried and not used: choosing among colorization,
+   biharmonic, harmonic and their mean per hole on such copies (tuning split 1.30 against 1.12: a copy
+   sees neither the hole's colour, e.g. a highlight's, nor what made the hole: holes sit at depth edges
+   and on dark or glancing surfaces, copies on plain surface; and it doubled the time); and dropping
+   the colour guidance for holes whose pixels are mostly bright and unsaturated (highlights): on the
+   tuning split it took a TUM specular row from 3.3 to 1.2, but on the report run it also took the
+   white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12); a test against the
+   hole's rim would be needed.
 ``FillResult.method`` names what was used, e.g. ``"auto: background+colorization+biharmonic+harmonic"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; colorization counts the pixels it was
 averaged into).
@@ -224,7 +222,7 @@ def fill_depth(
 def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; holes with a depth
     step or wider than ``small_radius`` -> the mean of the colorization and biharmonic fills (biharmonic
-    alone without RGB or where the hole's colour is a highlight); narrow step-free holes -> the smooth
+    alone without RGB); narrow step-free holes -> the smooth
     fill that did best on copies of them laid onto valid depth nearby. The rest of the band is left to
     the caller.
 
@@ -249,10 +247,9 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     small = rest & ~guided
     if guided.any():
         fill = fill_biharmonic(out, guided)
-        colour = guided & ~highlights(rgb, labels) if rgb is not None else None
-        if colour is not None and colour.any():  # their mean: neither wins on every hole, errors partly cancel
-            guide = fill_colorization(out, rgb, colour)
-            both = colour & np.isfinite(guide) & np.isfinite(fill)
+        if rgb is not None:  # their mean: neither wins on every hole, and their errors partly cancel
+            guide = fill_colorization(out, rgb, guided)
+            both = guided & np.isfinite(guide) & np.isfinite(fill)
             fill[both] = 0.5 * (fill[both] + guide[both])
             counts["colorization"] = int(both.sum())
         out[guided] = fill[guided]
@@ -263,27 +260,6 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
         out[small] = SMOOTH_FILLS[name](out, small)[small]
         counts[name] = counts.get(name, 0) + int(small.sum())
     return out, counts
-
-
-def highlights(rgb: np.ndarray, labels: np.ndarray, share: float = 0.5, value: float = 0.8,
-               saturation: float = 0.3) -> np.ndarray:
-    """bool (H, W): the labelled holes whose colour is mostly a specular highlight's (at least ``share``
-    of their pixels have an HSV value of at least ``value`` and a saturation of at most ``saturation``):
-    the colour there is the light's, not the surface's, and guides no fill."""
-    rgb = np.asarray(rgb)
-    if rgb.shape[:2] != labels.shape:
-        raise ValueError(f"RGB is {rgb.shape[1]}x{rgb.shape[0]} but the labels are {labels.shape[1]}x{labels.shape[0]}")
-    scale = 255.0 if rgb.dtype == np.uint8 else max(float(rgb.max()), 1e-12)
-    colour = (rgb[..., None] if rgb.ndim == 2 else rgb[..., :3]).astype(np.float64) / scale
-    bright = colour.max(axis=2)
-    sat = (bright - colour.min(axis=2)) / np.maximum(bright, 1e-12)
-    glare = (bright >= value) & (sat <= saturation)
-    n = int(labels.max())
-    size = np.bincount(labels.ravel(), minlength=n + 1)
-    lit = np.bincount(labels.ravel(), weights=glare.ravel(), minlength=n + 1)
-    out = lit >= share * np.maximum(size, 1)
-    out[0] = False
-    return out[labels]
 
 
 #: The smooth fills ``auto`` chooses between for narrow holes: most robust to noise (the choice where
