@@ -23,6 +23,8 @@ from rgbd2scene.reconstruct.fill import (
     shadow_pixels,
     step_runs,
 )
+from rgbd2scene.reconstruct.fill.holes import components, hole_copies
+from rgbd2scene.reconstruct.fill.policy import choose_smooth_fill
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -394,3 +396,49 @@ def test_real_sun_frame_keeps_the_corridor_end_empty(shared_samples):
     # the end of the corridor, beyond the Kinect's range (about 5 % of the image), stays a hole
     assert 0.04 < res.stats["beyond_range_fraction"] < 0.07
     assert res.stats["left_unfilled_fraction"] < 0.07
+
+
+def test_hole_copies_lie_on_free_depth_and_keep_the_holes_shape():
+    holes = disc(40, 40, 6) | disc(80, 110, 4)
+    holes[5:8, 150:158] = True
+    free = ~ndimage.binary_dilation(holes, iterations=2)
+    free[:, :20] = False  # no room there
+    labels, n = components(holes)
+    source = hole_copies(labels, free, copies=2)
+    copy = source >= 0
+    assert copy.any() and free[copy].all() and not holes[copy].any()
+    assert holes.ravel()[source[copy]].all()  # every copy pixel copies a hole pixel
+    # each copy is the hole shifted by one offset: the offset is the same for all its pixels
+    rows, cols = np.nonzero(copy)
+    src_rows, src_cols = np.divmod(source[copy], W)
+    copy_labels, n_copies = components(copy)
+    assert n_copies <= 2 * n
+    for k in range(1, n_copies + 1):
+        part = copy_labels[rows, cols] == k
+        shifts = set(zip(rows[part] - src_rows[part], cols[part] - src_cols[part], strict=True))
+        assert len(shifts) == 1
+        assert labels.ravel()[source[copy][part]].min() == labels.ravel()[source[copy][part]].max()
+    # copies of a hole with no free pixel around it: none
+    assert (hole_copies(labels, np.zeros((H, W), bool)) == -1).all()
+    with pytest.raises(ValueError, match="labels shape"):
+        hole_copies(labels, free[:10])
+
+
+def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
+    """Noise-free curved depth (from CT or a renderer): biharmonic, which follows the curvature; with a
+    sensor's noise: harmonic, which averages it. The depth decides, whatever the sensor setting."""
+    curved = smooth_surface()
+    mask = blobs(5, n=6, r=4)
+    noisy = curved * (1 + 0.01 * np.random.default_rng(0).standard_normal((H, W))).astype(np.float32)
+    free = ~ndimage.binary_dilation(mask, iterations=2)
+    for depth, expected in ((curved, "biharmonic"), (noisy, "harmonic")):
+        holed = np.where(mask, np.nan, depth).astype(np.float32)
+        assert choose_smooth_fill(holed, mask, free) == expected
+        for sensor in (KINECT_V1, get_sensor("none")):
+            res = fill_depth(holed, None, "auto", sensor=sensor, small_radius=6)  # all narrow
+            assert res.stats["auto_pixels"] == {expected: int(mask.sum())}
+    res = fill_depth(np.where(mask, np.nan, curved).astype(np.float32), None, "auto", small_radius=6)
+    harmonic = fill_harmonic(np.where(mask, np.nan, curved))
+    assert np.abs(res.depth[mask] - curved[mask]).mean() < 0.5 * np.abs(harmonic[mask] - curved[mask]).mean()
+    # no room for a copy: the harmonic fill, as for a noisy sensor
+    assert choose_smooth_fill(np.where(mask, np.nan, curved), mask, np.zeros((H, W), bool)) == "harmonic"

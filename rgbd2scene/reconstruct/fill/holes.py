@@ -458,3 +458,65 @@ def shadow_pixels(
     zn, zf = sub.end_depths(depth)
     width = fx * b[horizontal] * (1.0 / zn - 1.0 / zf)
     return sub.subset(sub.length <= width + slack_px).pixels(depth.shape)
+
+
+# ----------------------------------------------------------------------------------------------
+# copies of holes on valid depth, for self-validation
+
+#: Directions in which :func:`hole_copies` lays copies, nearest sides first.
+COPY_DIRECTIONS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (-1, -1), (1, -1), (-1, 1))
+
+
+def hole_copies(labels: np.ndarray, free: np.ndarray, copies: int = 3, coverage: float = 0.6,
+                gap: int = 2) -> np.ndarray:
+    """Copies of each labelled hole's own shape laid onto ``free`` pixels nearby.
+
+    Each hole (label k > 0 of ``labels``) is shifted by its bounding box plus ``gap`` px in the
+    directions of :data:`COPY_DIRECTIONS`, then by half of that (a large hole rarely has room for a
+    whole copy beside it); a shift is kept when at least ``coverage`` of the shifted pixels land on
+    ``free`` pixels not taken by an earlier copy (nor within ``gap`` px of one), and the copy is those
+    pixels. Larger holes are placed first; each gets at most ``copies`` copies.
+
+    Parameters
+    ----------
+    labels : int (H, W) hole labels, 0 = no hole.
+    free : bool (H, W) where copies may lie (valid depth away from the holes).
+    copies, coverage, gap : as above.
+
+    Returns
+    -------
+    int64 (H, W): for each copy pixel the flat index of the hole pixel it copies, -1 elsewhere.
+    """
+    if labels.shape != free.shape:
+        raise ValueError(f"labels shape {labels.shape} differs from free shape {free.shape}")
+    h, w = labels.shape
+    out = np.full(labels.shape, -1, dtype=np.int64)
+    room = free.copy()
+    boxes = ndi.find_objects(labels)
+    sizes = np.bincount(labels.ravel())
+    for k in np.argsort(-sizes[1:], kind="stable") + 1:
+        box = boxes[k - 1]
+        if box is None:
+            continue
+        rows, cols = np.nonzero(labels[box] == k)
+        rows, cols = rows + box[0].start, cols + box[1].start
+        bh, bw = box[0].stop - box[0].start + gap, box[1].stop - box[1].start + gap
+        placed = 0
+        for scale in (1.0, 0.5):
+            for dr, dc in COPY_DIRECTIONS:
+                if placed == copies:
+                    break
+                r2, c2 = rows + int(round(dr * bh * scale)), cols + int(round(dc * bw * scale))
+                inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+                r2, c2 = r2[inside], c2[inside]
+                ok = room[r2, c2]
+                if ok.sum() < coverage * rows.size:
+                    continue
+                out[r2[ok], c2[ok]] = (rows * w + cols)[inside][ok]
+                lo_r, hi_r = max(r2.min() - gap, 0), min(r2.max() + gap + 1, h)
+                lo_c, hi_c = max(c2.min() - gap, 0), min(c2.max() + gap + 1, w)
+                copy = np.zeros((hi_r - lo_r, hi_c - lo_c), dtype=bool)
+                copy[r2[ok] - lo_r, c2[ok] - lo_c] = True
+                room[lo_r:hi_r, lo_c:hi_c] &= ~ndi.binary_dilation(copy, structure=_EIGHT, iterations=gap)
+                placed += 1
+    return out

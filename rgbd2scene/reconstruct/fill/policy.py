@@ -28,15 +28,32 @@ What ``auto`` does
    for shadows, and lost more there than it gained). On the simulated shadows of the benchmark the
    row fill is twice as accurate as a smooth fill from the far side (harmonic, ``background``).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius
-   above 2.5 % of the shorter side): the mean of the colorization and the biharmonic fills
-   (biharmonic alone without RGB). Neither wins everywhere (colour edges follow depth edges in rooms,
-   not on textured or specular tissue), and a self-validation on the image's own hole shapes could not
-   tell them apart on the TUM frame (a tie within 5 %). On the benchmark's tuning split their mean was
-   within 3 % of the better of the two, or better, on every family but two: specular highlights (the
-   colour there is the light's, biharmonic alone is best) and the bundled sample's own shadows.
-3. **Narrow holes without a step**: harmonic fill (it averages sensor noise on the boundary; the
-   benchmark's specular highlights and sensor holes favour it up to a radius of 12 px at 640x480).
-``FillResult.method`` names what was used, e.g. ``"auto: background+colorization+biharmonic+harmonic"``.
+   above 2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic
+   alone without RGB). Neither wins everywhere (colour edges follow depth edges in rooms, not on
+   textured or specular tissue), and a self-validation on copies of the holes could not tell them apart
+   (3. below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
+   better, on every family but two: specular highlights and the bundled sample's own shadows.
+3. **Narrow holes without a step**: a harmonic or a biharmonic fill, whichever had the smaller error on
+   copies of these holes laid onto valid depth nearby (:func:`choose_smooth_fill`,
+   :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`: each hole shifted by its own size, up to
+   ``copies`` times, where the copy lands on valid depth away from other holes). Harmonic averages a
+   sensor's noise; biharmonic is exact on smooth noise-free depth (depth from CT or a renderer), so the
+   depth itself decides rather than the sensor setting. The choice is made once per image, on the
+   copies of all narrow holes pooled: noise is the sensor's, the same across the image, and choosing
+   per hole (each hole's error pulled towards the image's by 200 px' worth) did worse on the tuning
+   split. On the tuning split the choice is about neutral (geometric mean over its rows 1.114 against
+   1.118 with harmonic always); it is meant for noise-free depth, which that split lacks. Without a
+   copy that fits, harmonic (the earlier rule). Tried and not used: choosing among colorization,
+   biharmonic, harmonic and their mean per hole on such copies (tuning split 1.30 against 1.12: a copy
+   sees neither the hole's colour, e.g. a highlight's, nor what made the hole: holes sit at depth edges
+   and on dark or glancing surfaces, copies on plain surface; and it doubled the time); and dropping
+   the colour guidance for holes whose pixels are mostly bright and unsaturated (highlights): on the
+   tuning split it took a TUM specular row from 3.3 to 1.2, but on the report run it also took the
+   white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12); a test against the
+   hole's rim would be needed.
+``FillResult.method`` names what was used, e.g. ``"auto: background+colorization+biharmonic+harmonic"``
+(``FillResult.stats["auto_pixels"]``: how many pixels each filled; colorization counts the pixels it was
+averaged into).
 """
 
 from __future__ import annotations
@@ -46,9 +63,17 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy import ndimage as ndi
 
 from rgbd2scene.capture.sensors import KINECT_V1, Sensor
-from rgbd2scene.reconstruct.fill.holes import classify_holes, components, shadow_pixels, step_runs, valid_depth
+from rgbd2scene.reconstruct.fill.holes import (
+    classify_holes,
+    components,
+    hole_copies,
+    shadow_pixels,
+    step_runs,
+    valid_depth,
+)
 from rgbd2scene.reconstruct.fill.solvers import (
     as_depth,
     fill_background,
@@ -99,6 +124,7 @@ def fill_depth(
     min_radius: float | None = None,
     step: float = 0.04,
     small_radius: float | None = None,
+    copies: int = 3,
     inpaint_radius: float = 5.0,
     inpaint_algorithm: str = "ns",
 ) -> FillResult:
@@ -116,8 +142,9 @@ def fill_depth(
     min_radius : a hole is beyond the sensor's range only if a disk of this radius (px) fits in it;
         default 5 % of the shorter image side.
     step : relative depth difference across a hole that counts as a depth step.
-    small_radius : ``auto`` fills step-free holes whose inscribed disk has at most this radius (px)
-        harmonically, wider ones by colorization and biharmonic; default 2.5 % of the shorter side.
+    small_radius : ``auto`` averages the colour-guided fill in where a hole bridges a depth step or its
+        inscribed disk is wider than this radius (px); default 2.5 % of the shorter side.
+    copies : ``auto`` chooses each hole's smooth fill on up to this many copies of it laid onto valid depth.
     inpaint_radius, inpaint_algorithm : ``cv2.inpaint`` radius (px) and ``"ns"`` or ``"telea"``.
 
     Returns
@@ -164,7 +191,7 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius)
+        out, counts = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius, copies)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
@@ -176,7 +203,7 @@ def fill_depth(
     settings = {
         "method": method, "sensor": sensor.to_dict(), "fx": fx, "border_width": border_width,
         "fill_border": bool(fill_border), "min_radius": min_radius, "step": float(step),
-        "small_radius": float(small_radius), "inpaint_radius": float(inpaint_radius),
+        "small_radius": float(small_radius), "copies": int(copies), "inpaint_radius": float(inpaint_radius),
         "inpaint_algorithm": inpaint_algorithm, "space": "inverse depth", "rgb": rgb is not None,
     }
     stats = {
@@ -192,10 +219,12 @@ def fill_depth(
     return FillResult(out.astype(np.float32), filled, used, settings, stats)
 
 
-def _auto(work, rgb, todo, band, step, fx, baselines, small_radius):
-    """``auto`` (module docstring): shadow rows (the band's too) -> their far end; interior holes with a
-    step or wide ones -> mean of colorization and biharmonic; narrow step-free holes -> harmonic. The
-    rest of the band is left to the caller.
+def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
+    """``auto`` (module docstring): shadow rows (the band's too) -> their far end; holes with a depth
+    step or wider than ``small_radius`` -> the mean of the colorization and biharmonic fills (biharmonic
+    alone without RGB); narrow step-free holes -> the smooth
+    fill that did best on copies of them laid onto valid depth nearby. The rest of the band is left to
+    the caller.
 
     Returns the filled depth and the number of pixels each method filled.
     """
@@ -219,11 +248,51 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius):
     if guided.any():
         fill = fill_biharmonic(out, guided)
         if rgb is not None:  # their mean: neither wins on every hole, and their errors partly cancel
-            colour = fill_colorization(out, rgb, guided)
-            fill = np.where(np.isnan(fill), colour, np.where(np.isnan(colour), fill, 0.5 * (fill + colour)))
+            guide = fill_colorization(out, rgb, guided)
+            both = guided & np.isfinite(guide) & np.isfinite(fill)
+            fill[both] = 0.5 * (fill[both] + guide[both])
+            counts["colorization"] = int(both.sum())
         out[guided] = fill[guided]
-        counts["colorization+biharmonic" if rgb is not None else "biharmonic"] = int(guided.sum())
+        counts["biharmonic"] = int(guided.sum())
     if small.any():
-        out[small] = fill_harmonic(out, small)[small]
-        counts["harmonic"] = int(small.sum())
+        valid = valid_depth(work)
+        name = choose_smooth_fill(out, small, valid & ~ndi.binary_dilation(~valid, iterations=2), copies)
+        out[small] = SMOOTH_FILLS[name](out, small)[small]
+        counts[name] = counts.get(name, 0) + int(small.sum())
     return out, counts
+
+
+#: The smooth fills ``auto`` chooses between for narrow holes: most robust to noise (the choice where
+#: no copy can be laid), or exact on planes.
+SMOOTH_FILLS = {"harmonic": fill_harmonic, "biharmonic": fill_biharmonic}
+
+
+def choose_smooth_fill(depth: np.ndarray, holes: np.ndarray, free: np.ndarray, copies: int = 3) -> str:
+    """Which of :data:`SMOOTH_FILLS` had the least mean absolute depth error on copies of the holes laid
+    onto valid depth nearby (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`); the first where no
+    copy fits.
+
+    Parameters
+    ----------
+    depth : float (H, W) metres, NaN = invalid.
+    holes : bool (H, W) the holes whose shapes are copied (each 8-connected component is one hole).
+    free : bool (H, W) valid pixels the copies may hide.
+    copies : copies per hole.
+
+    Returns
+    -------
+    str: a key of :data:`SMOOTH_FILLS`.
+    """
+    labels, _ = components(holes)
+    source = hole_copies(labels, free, copies)
+    test = source >= 0
+    if not test.any():
+        return next(iter(SMOOTH_FILLS))
+    trial = np.where(test, np.nan, depth).astype(np.float32)
+    truth = depth[test].astype(np.float64)
+    miss = np.abs(truth - float(np.nanmedian(depth)))  # the error of a copy pixel left unfilled
+    errors = {}
+    for name, fill in SMOOTH_FILLS.items():
+        e = np.abs(fill(trial, test)[test] - truth)
+        errors[name] = float(np.where(np.isfinite(e), e, miss).mean())
+    return min(errors, key=errors.get)
