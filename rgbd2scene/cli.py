@@ -224,11 +224,18 @@ def _sensor_name(args, mode: str) -> str:
 
 def cmd_mesh(args) -> int:
     from rgbd2scene.files.atomic import ensure_output_dir
+    from rgbd2scene.pictures.overview import prefetch_renderer
     from rgbd2scene.stages.mesh import write_mesh_folder
 
     t0 = time.perf_counter()
     ensure_output_dir(args.output)
-    recon = _reconstruct(args)
+    _check_inputs(args)
+    prefetch = prefetch_renderer() if args.overview else None  # the ray caster of overview.png
+    try:
+        recon = _reconstruct(args)
+    finally:
+        if prefetch is not None:
+            prefetch.join()
     write_mesh_folder(args.output, recon)
     print(f"{_report(recon)}, total {time.perf_counter() - t0:.2f}s")
     print(f"{len(recon.mesh.vertices)} vertices, {len(recon.mesh.triangles)} triangles -> {args.output}/mesh.ply")
@@ -390,34 +397,29 @@ def cmd_dataset(args) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="rgbd2scene", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
-    p = sub.add_parser("mesh", help="fill holes, back-project and smooth: OUT/mesh.ply and OUT/scene.json")
+def _args_mesh(p: argparse.ArgumentParser) -> None:
     _add_capture_args(p)
     p.add_argument("-o", "--output", required=True, help="output folder")
-    p.set_defaults(func=cmd_mesh)
 
-    p = sub.add_parser("scene", help="the mesh plus a Blender scene with a stereo endoscope on a path")
+
+def _args_scene(p: argparse.ArgumentParser) -> None:
     _add_capture_args(p)
     _add_scene_args(p)
     p.add_argument("-o", "--output", required=True, help="scene folder")
-    p.set_defaults(func=cmd_scene)
 
+
+def _args_render(p: argparse.ArgumentParser) -> None:
     from rgbd2scene.options import add_arguments
     from rgbd2scene.stages.render import RenderOptions
 
-    p = sub.add_parser("render", help="render the stereo dataset with ground truth (resumable)")
     p.add_argument("scene", help="scene folder made by 'rgbd2scene scene'")
     p.add_argument("-o", "--output", required=True, help="dataset folder")
     add_arguments(p, RenderOptions)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--no-sheet", action="store_true", help="skip DATASET/contact_sheet.png (middle frame, all maps)")
-    p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("dataset", help="batch build: many captures, sequences and variations from one YAML/TOML "
-                       "configuration (resumable; local pool or Dask)")
+
+def _args_dataset(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", nargs="?", help="configuration file (.yaml, .yml or .toml; see README)")
     p.add_argument("-o", "--output", metavar="ROOT", help="build folder: one dataset folder per sequence, "
                    "manifest.csv, index.html")
@@ -430,26 +432,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--retry-failed", action="store_true", help="also redo the sequences that failed before")
     p.add_argument("--dashboard", action="store_true", help="serve the Dask dashboard (local cluster: port 8787)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or per-sequence lines")
-    p.set_defaults(func=cmd_dataset)
 
-    p = sub.add_parser("verify", help="check the ground truth of a dataset; non-zero exit when it fails")
+
+def _args_verify(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("--mesh", help="scene mesh to ray cast (default: the one dataset.json names)")
     p.add_argument("--json", help="also write the report as JSON")
     p.add_argument("--error-maps", help="folder for error-map pictures of the worst frames (per eye)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_verify)
 
-    p = sub.add_parser("preview", help="Open3D viewer of a mesh or scene; --screenshot renders headless")
+
+def _args_preview(p: argparse.ArgumentParser) -> None:
     p.add_argument("mesh", help="mesh (PLY/OBJ) or scene folder")
     p.add_argument("--screenshot", help="write a PNG instead of opening a window")
     p.add_argument("--width", type=int, default=1024)
     p.add_argument("--height", type=int, default=768)
-    p.set_defaults(func=cmd_preview)
 
+
+def _args_export_ros(p: argparse.ArgumentParser) -> None:
     from rgbd2scene.export.ros import DEFAULT_START_S
 
-    p = sub.add_parser("export-ros", help="ROS 1 .bag or ROS 2 (MCAP) bag of the dataset for replay at a chosen rate")
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("-o", "--output", required=True, help="bag: a .bag file (--ros 1) or a bag folder (--ros 2)")
     p.add_argument("--ros", type=int, default=2, choices=(1, 2),
@@ -464,19 +466,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scope-frame", default="endoscope", help="endoscope frame id; the eyes are "
                    "<scope>_left_optical_frame and <scope>_right_optical_frame (default endoscope)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_export_ros)
 
+
+def _args_export(p: argparse.ArgumentParser) -> None:
     from rgbd2scene.export import FORMATS
 
-    p = sub.add_parser("export", help="the dataset in a standard layout: KITTI, SceneFlow or VisionBlender npz")
     p.add_argument("dataset", help="dataset folder")
     p.add_argument("--format", required=True, choices=sorted(FORMATS), help="output layout")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("evaluate", help="stereo benchmark: SGBM, ELAS and external predictions scored against the "
-                       "ground truth")
+
+def _args_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("dataset", help="dataset folder, or a batch root with manifest.csv (one table per split)")
     p.add_argument("-o", "--output", help="output folder (default DATASET/evaluation)")
     p.add_argument("--methods", default="sgbm,elas", help="comma list of sgbm, elas, gt (the ground truth itself, "
@@ -490,12 +491,41 @@ def build_parser() -> argparse.ArgumentParser:
                    "plus 10 %%)")
     p.add_argument("--no-error-maps", action="store_true", help="skip the best/worst frame pictures")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=cmd_evaluate)
+
+
+#: command -> (help, the function adding its arguments, the function running it)
+COMMANDS = {
+    "mesh": ("fill holes, back-project and smooth: OUT/mesh.ply and OUT/scene.json", _args_mesh, cmd_mesh),
+    "scene": ("the mesh plus a Blender scene with a stereo endoscope on a path", _args_scene, cmd_scene),
+    "render": ("render the stereo dataset with ground truth (resumable)", _args_render, cmd_render),
+    "dataset": ("batch build: many captures, sequences and variations from one YAML/TOML configuration "
+                "(resumable; local pool or Dask)", _args_dataset, cmd_dataset),
+    "verify": ("check the ground truth of a dataset; non-zero exit when it fails", _args_verify, cmd_verify),
+    "preview": ("Open3D viewer of a mesh or scene; --screenshot renders headless", _args_preview, cmd_preview),
+    "export-ros": ("ROS 1 .bag or ROS 2 (MCAP) bag of the dataset for replay at a chosen rate", _args_export_ros,
+                   cmd_export_ros),
+    "export": ("the dataset in a standard layout: KITTI, SceneFlow or VisionBlender npz", _args_export, cmd_export),
+    "evaluate": ("stereo benchmark: SGBM, ELAS and external predictions scored against the ground truth",
+                 _args_evaluate, cmd_evaluate),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The CLI; with ``command``, only that command's arguments are declared (the others' imports take a
+    few tenths of a second at every start)."""
+    parser = _Parser(prog="rgbd2scene", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for name, (help_text, add_args, run) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text)
+        if command in (None, name):
+            add_args(p)
+        p.set_defaults(func=run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

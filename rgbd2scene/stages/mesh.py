@@ -8,6 +8,7 @@ overview.png, then ``scene.json`` last, so a folder with a scene.json is complet
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
@@ -59,32 +60,39 @@ def scene_record(recon: Reconstruction) -> dict:
     }
 
 
+def _overview_image(recon: Reconstruction, render) -> np.ndarray:
+    """The mesh seen from near the capture camera, in its frame (the overview's third panel)."""
+    vertices = recon.mesh.vertices
+    if recon.capture.posed:
+        vertices = transform_points(invert_pose(recon.capture.T_world_capture), vertices)
+    h, w = recon.filled.depth.shape
+    return render(vertices, recon.mesh.triangles, recon.mesh.vertex_colors, recon.capture.intrinsics.K,
+                             w, h)
+
+
 def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool = True) -> dict:
     """Write the mesh folder and return the scene.json record.
 
     ``scene.json`` goes last so that its presence means the folder is complete; with
     ``finalize=False`` the caller adds more (the Blender scene) and writes it itself.
     """
+    from rgbd2scene.pictures.overview import render_mesh_image, write_overview
+
     out = ensure_output_dir(out_dir)
     (out / folder.SCENE_JSON).unlink(missing_ok=True)
     t0 = time.perf_counter()
-    write_ply(out / folder.MESH, recon.mesh)
-    depth_filled = recon.filled.depth.astype(np.float32)
-    write_npy(out / folder.DEPTH_FILLED, depth_filled)
-    write_textured_obj(out, recon.mesh, name=folder.MESH_NAME)
-    if _highlights_removed(recon):
-        write_image(out / folder.TEXTURE_ORIGINAL, recon.capture.rgb)
-    if recon.options.overview:
-        from rgbd2scene.pictures.overview import render_mesh_image, write_overview
-
-        K = recon.capture.intrinsics.K
-        h, w = depth_filled.shape
-        vertices = recon.mesh.vertices  # the overview looks from near the capture camera, in its frame
-        if recon.capture.posed:
-            vertices = transform_points(invert_pose(recon.capture.T_world_capture), vertices)
-        mesh_img = render_mesh_image(vertices, recon.mesh.triangles, recon.mesh.vertex_colors, K, w, h)
-        write_overview(out / folder.OVERVIEW, recon.capture.rgb, recon.capture.depth, depth_filled, mesh_img,
-                       title=Path(recon.capture.rgb_path).name)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        # the overview's ray cast runs while the mesh files are written (both mostly outside the GIL)
+        image = pool.submit(_overview_image, recon, render_mesh_image) if recon.options.overview else None
+        write_ply(out / folder.MESH, recon.mesh)
+        depth_filled = recon.filled.depth.astype(np.float32)
+        write_npy(out / folder.DEPTH_FILLED, depth_filled)
+        write_textured_obj(out, recon.mesh, name=folder.MESH_NAME)
+        if _highlights_removed(recon):
+            write_image(out / folder.TEXTURE_ORIGINAL, recon.capture.rgb)
+        if image is not None:
+            write_overview(out / folder.OVERVIEW, recon.capture.rgb, recon.capture.depth, depth_filled,
+                           image.result(), title=Path(recon.capture.rgb_path).name)
     recon.timings["write_s"] = time.perf_counter() - t0
     record = scene_record(recon)
     if finalize:
