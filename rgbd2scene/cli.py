@@ -224,18 +224,11 @@ def _sensor_name(args, mode: str) -> str:
 
 def cmd_mesh(args) -> int:
     from rgbd2scene.files.atomic import ensure_output_dir
-    from rgbd2scene.pictures.overview import prefetch_renderer
     from rgbd2scene.stages.mesh import write_mesh_folder
 
     t0 = time.perf_counter()
     ensure_output_dir(args.output)
-    _check_inputs(args)
-    prefetch = prefetch_renderer() if args.overview else None  # the ray caster of overview.png
-    try:
-        recon = _reconstruct(args)
-    finally:
-        if prefetch is not None:
-            prefetch.join()
+    recon = _reconstruct(args)
     write_mesh_folder(args.output, recon)
     print(f"{_report(recon)}, total {time.perf_counter() - t0:.2f}s")
     print(f"{len(recon.mesh.vertices)} vertices, {len(recon.mesh.triangles)} triangles -> {args.output}/mesh.ply")
