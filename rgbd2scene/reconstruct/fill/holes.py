@@ -28,9 +28,10 @@ A hole pixel is filled unless it lies *outside the captured surface*; size plays
      frame, 10 %; beside the partition in the TUM frame) are no wider than an invalid corner that
      hides a surface, as the real hole masks laid onto valid depth in the benchmark show. A hole that
      does not touch the image edge is enclosed.
-  2. *Beyond range*: a hole that a disk of radius ``min_radius`` px fits in (default 5 % of the
-     shorter side) whose rim is the far end of the capture (median rim depth at or above the 95th
-     percentile of the valid depth) and recedes into it (inverse depth 5-8 px away from the hole
+  2. *Beyond range*: the part of a hole that disks of radius ``min_radius`` px fit in (default 5 % of
+     the shorter side; thin strips and notches attached to it are interior holes) when the hole's rim
+     is the far end of the capture (median rim depth at or above the 95th percentile of the valid
+     depth) and recedes into it (inverse depth 5-8 px away from the hole
      exceeds that of the rim, 1-2 px away, by more than ``recede``, 5 %): the surfaces around it run
      out of the sensor's range, like the end of the corridor in the SUN RGB-D sample (rim at the 98th
      percentile, receding 12 %). All three conditions, because any one alone also holds for holes in
@@ -290,8 +291,17 @@ def beyond_range(depth, valid, candidates, min_radius: float, far_quantile: floa
             continue
         rim_depth = float(np.median(depth[rim]))
         if rim_depth >= far_end and float(np.median(1.0 / depth[outer])) > (1.0 + recede) / rim_depth:
-            out |= hole
+            out |= hole & _swept(hole & (inside >= min_radius), min_radius)
     return out
+
+
+def _swept(centres: np.ndarray, radius: float) -> np.ndarray:
+    """The pixels within ``radius`` (+1.5 px for the pixel grid) of ``centres``: where a disk of that
+    radius fits in a region, the region's part that such disks cover. What they miss, thin strips and
+    notches that lead into it (e.g. a specular patch on the rim of a corridor's unseen end), is no part
+    of what lies beyond range but holes in the surface beside it."""
+    dist = cv2.distanceTransform((~centres).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return dist <= radius + 1.5
 
 
 # ----------------------------------------------------------------------------------------------
