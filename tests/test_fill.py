@@ -442,3 +442,17 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     assert np.abs(res.depth[mask] - curved[mask]).mean() < 0.5 * np.abs(harmonic[mask] - curved[mask]).mean()
     # no room for a copy: the harmonic fill, as for a noisy sensor
     assert choose_smooth_fill(np.where(mask, np.nan, curved), mask, np.zeros((H, W), bool)) == "harmonic"
+
+
+def test_thin_strip_on_the_rim_of_a_hole_beyond_range_is_filled():
+    """A hole beyond range (the tunnel's end) with a thin strip of missing pixels leading into it: the strip
+    is a hole in the surface beside it and is filled; the disk itself stays empty."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    dist = np.hypot(v - 60, u - 80)
+    depth = (1.0 / (0.3 + 0.01 * dist)).astype(np.float32)
+    far = dist <= 20
+    strip = (np.abs(v - 60) <= 1) & (u > 100) & (u <= 130)  # 3 px wide, from the disk's rim outwards
+    depth[far | strip] = np.nan
+    res = fill_depth(depth, None, "auto")
+    assert np.isnan(res.depth[far]).all()
+    assert np.isfinite(res.depth[strip & (dist > 22)]).all()
