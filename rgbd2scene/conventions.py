@@ -26,6 +26,19 @@ def pixel_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     return u, v
 
 
+def image_bounds(width: int, height: int) -> tuple[float, float, float, float]:
+    """(u_min, u_max, v_min, v_max) of the image area: pixel (u, v) covers [u - 0.5, u + 0.5), so a point
+    projecting to (u, v) is in a width x height image when u_min <= u < u_max and v_min <= v < v_max."""
+    return -0.5, width - 0.5, -0.5, height - 0.5
+
+
+def in_image(u: np.ndarray, v: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Bool: the projections (u, v) fall in a width x height image (:func:`image_bounds`; NaN: False)."""
+    u0, u1, v0, v1 = image_bounds(width, height)
+    with np.errstate(invalid="ignore"):
+        return (u >= u0) & (u < u1) & (v >= v0) & (v < v1)
+
+
 def backproject(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Back-project a planar depth map to camera-frame points.
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.conventions import invert_pose, project, transform_points
+from rgbd2scene.conventions import in_image, invert_pose, project, transform_points
 from rgbd2scene.reconstruct.mesh import Mesh
 from rgbd2scene.scene.paths.track import CameraPath, Track
 from rgbd2scene.scene.paths.waypoints import load_path_file, pose_matrix, waypoint_path
@@ -166,7 +166,6 @@ def frames_in_view(vertices: np.ndarray, poses: np.ndarray, rig: StereoRig, path
             p = transform_points(invert_pose(T), world)
             u, w = project(p, intr.K)
             with np.errstate(invalid="ignore"):
-                ok = ((p[:, 2] >= rig.clip_start) & (p[:, 2] <= rig.clip_end) & (u >= -0.5) & (u < intr.width - 0.5)
-                      & (w >= -0.5) & (w < intr.height - 0.5))
+                ok = (p[:, 2] >= rig.clip_start) & (p[:, 2] <= rig.clip_end) & in_image(u, w, intr.width, intr.height)
             out[f] |= bool(ok.any())
     return out

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.conventions import backproject, invert_pose, project, transform_points
+from rgbd2scene.conventions import backproject, in_image, invert_pose, project, transform_points
 from rgbd2scene.verify.framework import Check, EyeFrame
 
 #: flag map -> step to the other frame
@@ -64,8 +64,7 @@ def occlusion_reference(points: np.ndarray, K: np.ndarray, T_b: np.ndarray, dept
     pts = transform_points(invert_pose(T_b), points)
     z = pts[..., 2]
     u, v = project(pts, K)
-    with np.errstate(invalid="ignore"):
-        outside = surface & ~((u >= -0.5) & (u < w - 0.5) & (v >= -0.5) & (v < h - 0.5))
+    outside = surface & ~in_image(u, v, w, h)
     inside = surface & ~outside
     u0 = np.clip(np.floor(np.nan_to_num(u)), 0, w - 2).astype(np.int64) if w > 1 else np.zeros((h, w), int)
     v0 = np.clip(np.floor(np.nan_to_num(v)), 0, h - 2).astype(np.int64) if h > 1 else np.zeros((h, w), int)
