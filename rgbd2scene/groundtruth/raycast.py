@@ -13,10 +13,23 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.conventions import invert_pose, orient_normals_to_camera, pixel_rays, rotate, transform_points
+from rgbd2scene.conventions import (
+    image_bounds,
+    invert_pose,
+    orient_normals_to_camera,
+    pixel_rays,
+    rotate,
+    transform_points,
+)
 from rgbd2scene.reconstruct.mesh import vertex_normals
 
 _INVALID = np.uint32(0xFFFFFFFF)
+
+
+def _rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Open3D's ray layout (..., 6) float32: origin (broadcast to the directions) then direction."""
+    o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
+    return np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
 
 
 class Raycaster:
@@ -61,8 +74,7 @@ class Raycaster:
         (int64, -1 on a miss), ``uvs`` (barycentric (u, v): point = (1-u-v) p0 + u p1 + v p2) and
         ``face_normals`` (unit, triangle winding; NaN on a miss).
         """
-        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
-        rays = np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
+        rays = _rays(origins, directions)
         shape = rays.shape[:-1]
         if rays.size == 0 or self._empty:
             return {"t": np.full(shape, np.nan), "triangle_ids": np.full(shape, -1, np.int64),
@@ -84,8 +96,7 @@ class Raycaster:
     def blocked(self, origins: np.ndarray, directions: np.ndarray, t_max: float) -> np.ndarray:
         """Bool (...): a surface lies on each ray (..., 3) before ``t_max`` (units of the direction's
         length); an any-hit query, cheaper than :meth:`cast_rays`."""
-        o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
-        rays = np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
+        rays = _rays(origins, directions)
         shape = rays.shape[:-1]
         if rays.size == 0 or self._empty:
             return np.zeros(shape, bool)
@@ -195,16 +206,17 @@ def triangles_in_view(vertices: np.ndarray, triangles: np.ndarray, K: np.ndarray
     tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
     K = np.asarray(K, dtype=np.float64)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    lo, hi_u, hi_v = -0.5 - margin_px, width - 0.5 + margin_px, height - 0.5 + margin_px
+    u0, u1, v0, v1 = image_bounds(width, height)
+    u0, u1, v0, v1 = u0 - margin_px, u1 + margin_px, v0 - margin_px, v1 + margin_px
     keep = np.zeros(len(tri), bool)
     for T in poses:
         x, y, z = transform_points(invert_pose(np.asarray(T, dtype=np.float64)), vertices).T
-        # one bit per frustum plane; u = fx x / z + cx >= lo  <=>  fx x + (cx - lo) z >= 0 for z > 0
+        # one bit per frustum plane; u = fx x / z + cx >= u0  <=>  fx x + (cx - u0) z >= 0 for z > 0
         code = ((z <= 0).astype(np.uint8)
-                | ((fx * x + (cx - lo) * z < 0) << 1).astype(np.uint8)
-                | ((fx * x + (cx - hi_u) * z > 0) << 2).astype(np.uint8)
-                | ((fy * y + (cy - lo) * z < 0) << 3).astype(np.uint8)
-                | ((fy * y + (cy - hi_v) * z > 0) << 4).astype(np.uint8))
+                | ((fx * x + (cx - u0) * z < 0) << 1).astype(np.uint8)
+                | ((fx * x + (cx - u1) * z > 0) << 2).astype(np.uint8)
+                | ((fy * y + (cy - v0) * z < 0) << 3).astype(np.uint8)
+                | ((fy * y + (cy - v1) * z > 0) << 4).astype(np.uint8))
         keep |= (code[tri[:, 0]] & code[tri[:, 1]] & code[tri[:, 2]]) == 0
     return np.flatnonzero(keep)
 

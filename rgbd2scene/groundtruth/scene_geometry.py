@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.conventions import invert_pose, project, transform_points
+from rgbd2scene.conventions import in_image, invert_pose, project, transform_points
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
 from rgbd2scene.scene.deformation import rest_normals
@@ -61,10 +61,12 @@ class SceneGeometry:
             self.meshes.append(_PartMesh(part, vertices, triangles, normals, basis))
         offsets = self._offsets = np.cumsum([0] + [len(m.vertices) for m in self.meshes])
         self.triangles = np.concatenate([m.triangles + o for m, o in zip(self.meshes, offsets[:-1], strict=True)])
+        self._triangle_offsets = np.cumsum([0] + [len(m.triangles) for m in self.meshes])
         self.triangle_ids = np.concatenate([np.full(len(m.triangles), m.part.id, np.uint16) for m in self.meshes])
         self.static = not any(m.part.moving for m in self.meshes)
         self._cache: OrderedDict[tuple, Raycaster] = OrderedDict()
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
         self._lock = threading.RLock()  # the render worker asks from two threads
 
@@ -97,17 +99,33 @@ class SceneGeometry:
         """(instance id, part index) of the deforming parts (their vertices go to ``DATASET/geometry``)."""
         return [(m.part.id, i) for i, m in enumerate(self.meshes) if m.part.deformation is not None]
 
+    def _eye_poses(self, frame: int) -> list[np.ndarray]:
+        return [self.description.camera_pose(frame, eye) for eye in ("left", "right")]
+
+    def in_view(self, frame: int, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        """Indices (into :attr:`triangles`) of the triangles that ``frame``'s two eyes may see
+        (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`), computed once per frame and view."""
+        key = (int(frame), int(width), int(height), np.asarray(K, dtype=np.float64).tobytes())
+        with self._lock:
+            out = self._in_view.get(key)
+            if out is None:
+                out = triangles_in_view(self.vertices(frame), self.triangles, K, width, height,
+                                        self._eye_poses(frame))
+                self._in_view[key] = out
+                while len(self._in_view) > self._cache_size:
+                    self._in_view.popitem(last=False)
+            return out
+
     def raycaster(self, frame: int, K: np.ndarray | None = None, width: int = 0, height: int = 0,
                   T_world_cam: np.ndarray | None = None) -> Raycaster:
         """The scene at ``frame`` ready for ray casting from the camera ``T_world_cam`` (K, width, height).
 
         When that camera is one of the model's eyes at ``frame``, only the triangles the two eyes can see
-        are cast against (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`: the same hits, and a
-        few thousand triangles instead of the whole deforming tissue to build an acceleration structure
-        over, every frame); otherwise, or without a camera, the whole scene.
+        are cast against (:meth:`in_view`: the same hits, and a few thousand triangles instead of the whole
+        deforming tissue to build an acceleration structure over, every frame); otherwise, or without a
+        camera, the whole scene.
         """
-        eyes = [self.description.camera_pose(frame, eye) for eye in ("left", "right")]
-        culled = T_world_cam is not None and any(np.array_equal(T_world_cam, e) for e in eyes)
+        culled = T_world_cam is not None and any(np.array_equal(T_world_cam, e) for e in self._eye_poses(frame))
         key: tuple = (0 if self.static else int(frame),)
         if culled:
             key += (int(width), int(height), np.asarray(K, dtype=np.float64).tobytes())
@@ -116,9 +134,8 @@ class SceneGeometry:
         with self._lock:
             rc = self._cache.get(key)
             if rc is None:
-                vertices = self.vertices(frame)
-                subset = triangles_in_view(vertices, self.triangles, K, width, height, eyes) if culled else None
-                rc = Raycaster(vertices, self.triangles, subset)
+                subset = self.in_view(frame, K, width, height) if culled else None
+                rc = Raycaster(self.vertices(frame), self.triangles, subset)
                 self._cache[key] = rc
                 while len(self._cache) > self._cache_size:
                     self._cache.popitem(last=False)
@@ -128,18 +145,18 @@ class SceneGeometry:
     def view_support(self, index: int, frame: int, K: np.ndarray, width: int, height: int) -> np.ndarray:
         """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes needs.
 
-        Those of its triangles in view (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`) and of
-        every triangle sharing a vertex with one: each vertex in view keeps all its triangles, so its smooth
-        normal, and every hit, are those of the whole mesh. A render of only these (the data render masks
-        the rest) gives the same passes, bit for bit, for a small part of the cost of syncing and building
-        a BVH over the whole tissue.
+        Those of its triangles in view (:meth:`in_view`) and of every triangle sharing a vertex with one:
+        each vertex in view keeps all its triangles, so its smooth normal, and every hit, are those of the
+        whole mesh. A render of only these (the data render masks the rest) gives the same passes, bit for
+        bit, for a small part of the cost of syncing and building a BVH over the whole tissue.
         """
         m = self.meshes[index]
-        vertices = self.vertices(frame)[self._offsets[index]:self._offsets[index + 1]]
-        eyes = [self.description.camera_pose(frame, eye) for eye in ("left", "right")]
-        seen = np.zeros(len(vertices), bool)
-        seen[m.triangles[triangles_in_view(vertices, m.triangles, K, width, height, eyes)]] = True
-        keep = np.zeros(len(vertices), bool)
+        first, end = self._triangle_offsets[index], self._triangle_offsets[index + 1]
+        visible = self.in_view(frame, K, width, height)
+        visible = visible[(visible >= first) & (visible < end)] - first
+        seen = np.zeros(len(m.vertices), bool)
+        seen[m.triangles[visible]] = True
+        keep = np.zeros(len(m.vertices), bool)
         keep[m.triangles[seen[m.triangles].any(axis=1)]] = True
         return np.flatnonzero(keep)
 
@@ -182,8 +199,7 @@ class SceneGeometry:
         if not valid.any():
             return valid
         u, v = project(transform_points(invert_pose(T_world_cam), p), K)
-        with np.errstate(invalid="ignore"):
-            inside = (u >= -0.5) & (u < width - 0.5) & (v >= -0.5) & (v < height - 0.5)
+        inside = in_image(u, v, width, height)
         centre = np.asarray(T_world_cam, dtype=np.float64)[:3, 3]
         # only points that project into the image are cast at: the segment to such a point lies in the
         # camera's view (the others are hidden anyway, and a NaN ray has no defined hit)
