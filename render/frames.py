@@ -308,6 +308,7 @@ class Renderer:
         removes the EXRs. No ``bpy``: runs in a thread."""
         index = job["index"]
         try:
+            from_model = model.result()
             for eye, path in job["files"].items():
                 passes = read_passes(path, self.passes | {"depth"})
                 gt = gt_from_passes(passes["depth"], passes.get("normal"), passes.get("vector"),
@@ -316,11 +317,11 @@ class Renderer:
                                     object_ids=job["object_ids"], object_poses=job["object_poses"],
                                     maps=self.maps)
                 surface = np.isfinite(gt.get("depth", depth_from_pass(passes["depth"])))
-                for key, flags in model.result().get(eye, {}).items():
+                for key, flags in from_model.get(eye, {}).items():
                     gt[key] = flags & surface
                 ds.write_gt(ds.frame_paths(self.out_dir, eye, index).gt, gt, scratch=self.work)
-            if model.result().get("geometry"):
-                ds.write_gt(ds.geometry_path(self.out_dir, index), model.result()["geometry"], scratch=self.work)
+            if from_model.get("geometry"):
+                ds.write_gt(ds.geometry_path(self.out_dir, index), from_model["geometry"], scratch=self.work)
         finally:
             for path in job["files"].values():
                 path.unlink(missing_ok=True)

@@ -60,13 +60,15 @@ def scene_record(recon: Reconstruction) -> dict:
     }
 
 
-def _overview_image(recon: Reconstruction, render) -> np.ndarray:
+def _overview_image(recon: Reconstruction) -> np.ndarray:
     """The mesh seen from near the capture camera, in its frame (the overview's third panel)."""
+    from rgbd2scene.pictures.overview import render_mesh_image
+
     vertices = recon.mesh.vertices
     if recon.capture.posed:
         vertices = transform_points(invert_pose(recon.capture.T_world_capture), vertices)
     h, w = recon.filled.depth.shape
-    return render(vertices, recon.mesh.triangles, recon.mesh.vertex_colors, recon.capture.intrinsics.K,
+    return render_mesh_image(vertices, recon.mesh.triangles, recon.mesh.vertex_colors, recon.capture.intrinsics.K,
                              w, h)
 
 
@@ -76,14 +78,14 @@ def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool
     ``scene.json`` goes last so that its presence means the folder is complete; with
     ``finalize=False`` the caller adds more (the Blender scene) and writes it itself.
     """
-    from rgbd2scene.pictures.overview import render_mesh_image, write_overview
+    from rgbd2scene.pictures.overview import write_overview
 
     out = ensure_output_dir(out_dir)
     (out / folder.SCENE_JSON).unlink(missing_ok=True)
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=1) as pool:
         # the overview's ray cast runs while the mesh files are written (both mostly outside the GIL)
-        image = pool.submit(_overview_image, recon, render_mesh_image) if recon.options.overview else None
+        image = pool.submit(_overview_image, recon) if recon.options.overview else None
         write_ply(out / folder.MESH, recon.mesh)
         depth_filled = recon.filled.depth.astype(np.float32)
         write_npy(out / folder.DEPTH_FILLED, depth_filled)
