@@ -68,9 +68,7 @@ def test_orient_normals_to_camera():
 
 
 def test_image_area_is_half_a_pixel_beyond_the_outer_pixel_centres():
-    from rgbd2scene.conventions import image_bounds, in_image
-
-    assert image_bounds(4, 3) == (-0.5, 3.5, -0.5, 2.5)
+    assert cv.image_bounds(4, 3) == (-0.5, 3.5, -0.5, 2.5)
     u = np.array([-0.5, -0.5001, 3.4999, 3.5, 1.0, np.nan])
     v = np.array([0.0, 0.0, 2.4999, 0.0, 2.5, 1.0])
-    np.testing.assert_array_equal(in_image(u, v, 4, 3), [True, False, True, False, False, False])
+    np.testing.assert_array_equal(cv.in_image(u, v, 4, 3), [True, False, True, False, False, False])
