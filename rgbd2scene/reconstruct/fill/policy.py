@@ -33,7 +33,15 @@ What ``auto`` does
    textured or specular tissue), and a self-validation on copies of the holes could not tell them apart
    (3. below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
    better, on every family but two: specular highlights and the bundled sample's own shadows.
-3. **Narrow holes without a step**: a harmonic or a biharmonic fill, whichever had the smaller error on
+   Highlights are therefore not guided by colour: a hole at least half of whose pixels are bright,
+   unsaturated and brighter than the surface around it
+   (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets the smooth fill of 3. below,
+   whatever its width. Its colour is the light's, not the surface's, and a uniform white patch
+   matches whatever white surface lies next to it (the TUM frame's desk: tuning row 3.31 -> 1.18
+   times the best plain solver, no other tuning row changed). Brighter than its rim, and not merely
+   bright: a hole in a white wall is as bright as the wall around it, and colour helps there (a
+   rule on brightness alone took the Redwood frames' walls for highlights).
+3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the smaller error on
    copies of these holes laid onto valid depth nearby (:func:`choose_smooth_fill`,
    :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`: each hole shifted by its own size, up to
    ``copies`` times, where the copy lands on valid depth away from other holes). Harmonic averages a
@@ -47,10 +55,9 @@ What ``auto`` does
    biharmonic, harmonic and their mean per hole on such copies (tuning split 1.30 against 1.12: a copy
    sees neither the hole's colour, e.g. a highlight's, nor what made the hole: holes sit at depth edges
    and on dark or glancing surfaces, copies on plain surface; and it doubled the time); and dropping
-   the colour guidance for holes whose pixels are mostly bright and unsaturated (highlights): on the
-   tuning split it took a TUM specular row from 3.3 to 1.2, but on the report run it also took the
-   white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12); a test against the
-   hole's rim would be needed.
+   the colour guidance for holes whose pixels are merely bright and unsaturated: on the report run
+   it also took the white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12),
+   hence the test against the hole's rim in 2.
 ``FillResult.method`` names what was used, e.g. ``"auto: background+colorization+biharmonic+harmonic"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; colorization counts the pixels it was
 averaged into).
@@ -69,6 +76,7 @@ from rgbd2scene.capture.sensors import KINECT_V1, Sensor
 from rgbd2scene.reconstruct.fill.holes import (
     classify_holes,
     components,
+    highlight_pixels,
     hole_copies,
     shadow_pixels,
     step_runs,
@@ -221,8 +229,8 @@ def fill_depth(
 
 def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; holes with a depth
-    step or wider than ``small_radius`` -> the mean of the colorization and biharmonic fills (biharmonic
-    alone without RGB); narrow step-free holes -> the smooth
+    step or wider than ``small_radius``, highlights excepted -> the mean of the colorization and
+    biharmonic fills (biharmonic alone without RGB); narrow step-free holes and highlights -> the smooth
     fill that did best on copies of them laid onto valid depth nearby. The rest of the band is left to
     the caller.
 
@@ -243,6 +251,10 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     inscribed = cv2.distanceTransform(interior.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     wide[labels[inscribed > small_radius]] = True
     wide[0] = False
+    if rgb is not None:  # a highlight's colour says nothing of its depth: the smooth fill, as for narrow holes
+        shine = highlight_pixels(rgb, ~valid_depth(work))
+        pixels = np.bincount(labels.ravel(), minlength=n + 1)
+        wide &= 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) < pixels
     guided = wide[labels] & rest
     small = rest & ~guided
     if guided.any():
