@@ -25,6 +25,7 @@ from rgbd2scene.reconstruct.fill import (
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
 from rgbd2scene.reconstruct.fill.policy import choose_smooth_fill
+from rgbd2scene.reconstruct.fill.solvers import clip_to_rim
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -530,3 +531,27 @@ def test_highlight_holes_get_the_smooth_fill_not_the_colour_guided_one():
     assert "colorization" not in res.stats["auto_pixels"]
     assert np.abs(res.depth[spot] - truth[spot]).max() < 1e-4
     assert np.abs(fill_colorization(depth, rgb)[spot] - truth[spot]).mean() > 1e-3
+
+
+def test_clip_to_rim_bounds_the_thin_plate_across_a_step_but_not_on_a_dome():
+    """A tall hole across a slanted step between walls at 1 and 2 m: the thin plate overshoots to over
+    3 m; clipped to the rim's range it errs less, and auto's fill stays within it. On a dome (a hole on
+    the top of an organ) auto keeps the thin plate's curvature, nearer than any rim pixel."""
+    v, u = np.mgrid[0:120, 0:160].astype(np.float64)
+    truth = np.where(u > 80 + 0.5 * (v - 60), 1.0, 2.0).astype(np.float32)
+    hole = ((u - 80) / 20) ** 2 + ((v - 60) / 45) ** 2 <= 1
+    depth = np.where(hole, np.nan, truth).astype(np.float32)
+    thin_plate = fill_biharmonic(depth, hole)
+    assert thin_plate[hole].max() > 3.0
+    clipped = clip_to_rim(thin_plate, depth, hole)
+    assert clipped[hole].min() >= 1.0 and clipped[hole].max() <= 2.0
+    error = lambda d: np.abs(d[hole] - truth[hole]).mean()  # noqa: E731
+    assert error(clipped) < 0.8 * error(thin_plate)
+    res = fill_depth(depth, None, "auto")
+    assert res.depth[hole].min() >= 1.0 and res.depth[hole].max() <= 2.0
+
+    dome = (0.5 + 2e-5 * ((v - 60) ** 2 + (u - 80) ** 2)).astype(np.float32)
+    top = np.hypot(v - 60, u - 80) <= 20
+    res = fill_depth(np.where(top, np.nan, dome).astype(np.float32), None, "auto")
+    assert res.depth[top].min() < dome[~top].min() - 0.005
+    assert np.abs(res.depth[top] - dome[top]).max() < 0.002

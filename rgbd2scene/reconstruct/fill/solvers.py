@@ -9,6 +9,7 @@ depth, where a plane is affine in pixel coordinates, and never changes a valid p
 ``fill_colorization``     Levin et al. colour-guided fill as in the NYU Depth v2 toolbox
                           (``fill_depth_colorization``), solved for the hole pixels only.
 ``fill_biharmonic``       thin-plate (biharmonic) fill: smooth, exact on planes.
+``clip_to_rim``           each hole's fill bounded by its rim's depth range (a thin plate overshoots at steps).
 ``fill_harmonic``         membrane (Laplace) fill: smoothest, most robust to boundary noise.
 ``fill_background``       for occlusion shadows: the near side of each depth step across a hole is
                           dropped as a constraint, so the hole is filled from the far side only.
@@ -326,6 +327,38 @@ def fill_biharmonic(
     float32 (H, W): a copy of ``depth`` with the mask pixels filled.
     """
     return _smooth_fill(depth, mask, _thin_plate, exclude)
+
+
+def clip_to_rim(filled: np.ndarray, depth: np.ndarray, mask: np.ndarray, width: float = 2.0) -> np.ndarray:
+    """Each hole's fill clipped to the depth range of its rim: the valid pixels within ``width`` px of it.
+
+    A harmonic fill obeys this bound by itself (the maximum principle); a thin plate does not, and
+    across a depth step it overshoots beyond both sides.
+
+    Parameters
+    ----------
+    filled : float (H, W) a fill of ``depth``'s ``mask`` pixels.
+    depth : float (H, W) metres before the fill, NaN = invalid.
+    mask : bool (H, W) the filled pixels; each 8-connected component is one hole.
+    width : px, the rim's width.
+
+    Returns
+    -------
+    float32 (H, W): ``filled`` with its mask pixels clipped (a hole without a valid rim unchanged).
+    """
+    out = np.array(filled, dtype=np.float32, copy=True)
+    labels, n = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return out
+    dist, (rows, cols) = ndi.distance_transform_edt(labels == 0, return_indices=True)
+    rim = (dist <= width) & valid_depth(depth) & ~mask
+    owner = labels[rows[rim], cols[rim]]
+    lo, hi = np.full(n + 1, np.inf), np.full(n + 1, -np.inf)
+    np.minimum.at(lo, owner, depth[rim])
+    np.maximum.at(hi, owner, depth[rim])
+    sel = mask & np.isfinite(out)
+    out[sel] = np.clip(out[sel], lo[labels[sel]], hi[labels[sel]])
+    return out
 
 
 def _membrane(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.ndarray:
