@@ -5,9 +5,10 @@ the depth steps and shadows across them; ``solvers``: the fills themselves, pure
 ``policy``: :func:`fill_depth`, which applies the one to the other (``auto`` chooses per hole).
 """
 
-from rgbd2scene.reconstruct.fill.holes import HoleMap, classify_holes, shadow_pixels, step_runs
+from rgbd2scene.reconstruct.fill.holes import HoleMap, classify_holes, highlight_pixels, shadow_pixels, step_runs
 from rgbd2scene.reconstruct.fill.policy import FILL_METHODS, FillResult, fill_depth
 from rgbd2scene.reconstruct.fill.solvers import (
+    clip_to_rim,
     fill_background,
     fill_biharmonic,
     fill_colorization,
@@ -16,6 +17,6 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_row_background,
 )
 
-__all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "fill_background", "fill_biharmonic",
-           "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint", "fill_row_background",
-           "shadow_pixels", "step_runs"]
+__all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "clip_to_rim", "fill_background",
+           "fill_biharmonic", "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint",
+           "fill_row_background", "highlight_pixels", "shadow_pixels", "step_runs"]

@@ -31,8 +31,9 @@ What ``auto`` does
    above 2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic
    alone without RGB), the biharmonic one clipped to the hole's rim depth range where the hole bridges
    a step (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a thin plate across a depth step
-   overshoots beyond both sides, while on a smooth dome its curvature is the surface's (tuning split: geometric mean over its rows 1.065 -> 1.053, its captures
-   with the colour removed 1.174 -> 1.098; rows above 1.10 8 -> 8 and 5 -> 4). Neither fill wins
+   overshoots beyond both sides, while on a smooth dome its curvature is the surface's (tuning split:
+   geometric mean over its rows 1.065 -> 1.053, its captures with the colour removed 1.174 -> 1.098;
+   rows above 1.10 8 -> 8 and 5 -> 4). Neither fill wins
    everywhere (colour edges follow depth edges in rooms, not on textured or specular tissue), and a
    self-validation on copies of the holes could not tell them apart (3. below). On the benchmark's
    tuning split their mean was within 3 % of the better of the two, or better, on every family but
@@ -235,9 +236,9 @@ def fill_depth(
 def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; holes with a depth
     step or wider than ``small_radius``, highlights excepted -> the mean of the colorization and
-    biharmonic fills (biharmonic alone without RGB; clipped to the rim's depth range across a step); narrow step-free holes and highlights -> the smooth
-    fill that did best on copies of them laid onto valid depth nearby. The rest of the band is left to
-    the caller.
+    biharmonic fills (biharmonic alone without RGB; clipped to the rim's depth range across a step);
+    narrow step-free holes and highlights -> the smooth fill that did best on copies of them laid onto
+    valid depth nearby. The rest of the band is left to the caller.
 
     Returns the filled depth and the number of pixels each method filled.
     """
