@@ -28,26 +28,24 @@ A hole pixel is filled unless it lies *outside the captured surface*; size plays
      frame, 10 %; beside the partition in the TUM frame) are no wider than an invalid corner that
      hides a surface, as the real hole masks laid onto valid depth in the benchmark show. A hole that
      does not touch the image edge is enclosed.
-  2. *Beyond range*: the part of a hole that disks of radius ``min_radius`` px fit in (default 5 % of
-     the shorter side; thin strips and notches attached to it are interior holes), less its outer
-     ``range_margin`` px (below), when the hole's rim
-     is the far end of the capture (median rim depth at or above the 95th percentile of the valid
-     depth) and recedes into it all around (at least half of the rim pixels, 1-2 px from the hole,
-     lie deeper by more than ``recede``, 5 % in inverse depth, than the nearest valid pixel 5-8 px
-     away): the surfaces around it run out of the sensor's range, like the end of the corridor in the
-     SUN RGB-D sample (rim at the 99th percentile, 69 % of its pixels receding). All three
-     conditions, because any one alone also holds for holes in a plain surface: the far end of a
+  2. *Beyond range*: the part of a hole that disks of radius ``min_radius`` px fit in (default 5 % of the
+     shorter side; thin strips and notches attached to it are interior holes), less its outer
+     ``range_margin`` px (below), when the hole's rim is the far end of the capture (median rim depth at
+     or above the 95th percentile of the valid depth) and recedes into it all around (at least half of the
+     rim pixels, 1-2 px from the hole, lie deeper by more than ``recede``, 5 % in inverse depth, than the
+     nearest valid pixel 5-8 px away): the surfaces around it run out of the sensor's range, like the end
+     of the corridor in the SUN RGB-D sample (rim at the 99th percentile, 69 % of its pixels receding).
+     All three conditions, because any one alone also holds for holes in a plain surface: the far end of a
      tilted table, a hole across a depth step. Per rim pixel, not the rim's median against the outer
-     ring's, because a hole straddling a near object's outline against the far end of the room has
-     a far rim on one side and a nearer outer ring on the other: random blobs laid on the TUM frame
-     (seeds 100-139, none of the benchmark's) took two such holes for beyond range, with 13 % and
-     15 % of their rim pixels receding. The outer
-     ``range_margin`` px (default the shorter side / 120: 4 px at 480, half the 9 px matching window of
-     a Kinect v1) are filled, not left: a sensor that matches windows invalidates that much measurable
-     surface beside a region it cannot measure, and a highlight or dropout on that rim (a ceiling lamp
-     above the SUN corridor's unseen end) merges with the region. In the real SUN frame this moves the
-     region's edge 4 px inward (5.1 % -> 4.5 % of the image); with every highlight of its RGB hidden, the
-     hidden pixels taken for beyond range go from 107 to 1.
+     ring's, because a hole straddling a near object's outline against the far end of the room has a far
+     rim on one side and a nearer outer ring on the other: random blobs laid on the TUM frame (seeds
+     100-139, none of the benchmark's) took two such holes for beyond range, with 13 % and 15 % of their
+     rim pixels receding. The outer ``range_margin`` px (default the shorter side / 120: 4 px at 480, half
+     the 9 px matching window of a Kinect v1) are filled, not left: a sensor that matches windows
+     invalidates that much measurable surface beside a region it cannot measure, and a highlight or
+     dropout on that rim (a ceiling lamp above the SUN corridor's unseen end) merges with the region. In
+     the real SUN frame this moves the region's edge 4 px inward (5.1 % -> 4.5 % of the image); with every
+     highlight of its RGB hidden, the hidden pixels taken for beyond range go from 107 to 1.
 * **Interior** (``HoleMap.fill`` minus the band): everything else, filled by the chosen method.
 
 Outside pixels stay NaN and the mesh ends at them.

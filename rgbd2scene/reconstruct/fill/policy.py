@@ -27,24 +27,22 @@ What ``auto`` does
    3 px instead of 1 recognised more of the bundled sample's shadows but took more of its dropouts
    for shadows, and lost more there than it gained). On the simulated shadows of the benchmark the
    row fill is twice as accurate as a smooth fill from the far side (harmonic, ``background``).
-2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius
-   above 2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic
-   alone without RGB), the biharmonic one clipped to the hole's rim depth range where the hole bridges
-   a step (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a thin plate across a depth step
-   overshoots beyond both sides, while on a smooth dome its curvature is the surface's (tuning split:
-   geometric mean over its rows 1.065 -> 1.053, its captures with the colour removed 1.174 -> 1.098;
-   rows above 1.10 8 -> 8 and 5 -> 4). Neither fill wins
-   everywhere (colour edges follow depth edges in rooms, not on textured or specular tissue), and a
-   self-validation on copies of the holes could not tell them apart (3. below). On the benchmark's
-   tuning split their mean was within 3 % of the better of the two, or better, on every family but
-   two: specular highlights and the bundled sample's own shadows.
-   Highlights are therefore not guided by colour: a hole at least half of whose pixels are bright,
-   unsaturated and brighter than the surface around it
-   (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets the smooth fill of 3. below,
-   whatever its width. Its colour is the light's, not the surface's, and a uniform white patch
-   matches whatever white surface lies next to it (the TUM frame's desk: tuning row 3.31 -> 1.18
-   times the best plain solver, no other tuning row changed). Brighter than its rim, and not merely
-   bright: a hole in a white wall is as bright as the wall around it, and colour helps there (a
+2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
+   2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic alone
+   without RGB), the biharmonic one clipped to the hole's rim depth range where the hole bridges a step
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a thin plate across a depth step overshoots
+   beyond both sides, while on a smooth dome its curvature is the surface's (tuning split: geometric mean
+   over its rows 1.065 -> 1.053, its captures with the colour removed 1.174 -> 1.098; rows above 1.10
+   8 -> 8 and 5 -> 4). Neither fill wins everywhere (colour edges follow depth edges in rooms, not on
+   textured or specular tissue), and a self-validation on copies of the holes could not tell them apart
+   (3. below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
+   better, on every family but two: specular highlights and the bundled sample's own shadows. Highlights
+   are therefore not guided by colour: a hole at least half of whose pixels are bright, unsaturated and
+   brighter than the surface around it (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets
+   the smooth fill of 3. below, whatever its width. Its colour is the light's, not the surface's, and a
+   uniform white patch matches whatever white surface lies next to it (the TUM frame's desk: tuning row
+   3.31 -> 1.18 times the best plain solver, no other tuning row changed). Brighter than its rim, and not
+   merely bright: a hole in a white wall is as bright as the wall around it, and colour helps there (a
    rule on brightness alone took the Redwood frames' walls for highlights).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had
    the smaller error on copies of these holes laid onto valid depth nearby (:func:`choose_smooth_fill`,
@@ -258,7 +256,6 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     wide = stepped.copy()
     inscribed = cv2.distanceTransform(interior.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     wide[labels[inscribed > small_radius]] = True
-    wide[0] = False
     if rgb is not None:  # a highlight's colour says nothing of its depth: the smooth fill, as for narrow holes
         shine = highlight_pixels(rgb, ~valid_depth(work))
         pixels = np.bincount(labels.ravel(), minlength=n + 1)
