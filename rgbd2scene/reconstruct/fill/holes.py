@@ -347,6 +347,12 @@ def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = 200.
     over a Gaussian of ``sigma`` px among pixels outside the holes. A white wall or desk seen whole is
     as bright inside a hole as around it, so only a highlight, brighter than its own rim, passes.
 
+    Not :func:`rgbd2scene.reconstruct.texture.highlight_mask`, which finds the glare to paint out of the
+    texture and leaves out pale regions over 1 % of the image (white objects, which inpainting would
+    smear): that limit also drops a wide highlight on a white desk. On the TUM frame with seed 1 of the
+    benchmark's specular masks it finds 133 of the 3820 hidden pixels (this function 2812), and as the
+    fill's test the tuning row goes 1.18 -> 3.25 times the best plain solver.
+
     Parameters
     ----------
     rgb : uint8 (H, W, 3).
