@@ -11,7 +11,9 @@ a circular field stop); None measures every pixel.
 - **Noise** (:func:`noise_sigma`): standard deviation of additive noise in the luminance (8-bit levels), by
   the median absolute value of the finest diagonal wavelet coefficients (Donoho & Johnstone 1994, as
   ``skimage.restoration.estimate_sigma`` does with Daubechies wavelets; here the orthonormal Haar wavelet,
-  so a 2x2 block needs only its own pixels to lie inside the mask). The median ignores most scene texture.
+  so a 2x2 block needs only its own pixels to lie inside the mask). The median ignores most scene texture;
+  below about one level it is coarse on 8-bit images (the median falls on one of the few values that integer
+  pixels give), so a clean render reads about 0.4 whatever its true noise.
 - **Sharpness** (:func:`high_frequency_share`, :func:`gradient_mean`): the share of the spectral power of the
   contrast image (luminance over its mean: exposure does not count) at and above ``HIGH_FREQUENCY`` cycles per
   pixel, and the mean gradient magnitude of the contrast image.
