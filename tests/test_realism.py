@@ -287,3 +287,44 @@ def test_bad_inputs_exit_2(plane, tmp_path, capsys, case, message):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and message in err[0]
     assert not (tmp_path / "out").exists()
+
+
+def sgbm_for(plane: Dataset):
+    from rgbd2scene.evaluate.methods import DisparityRange, Sgbm
+
+    z = plane.gt("left", 0, ("depth",))["depth"]
+    return Sgbm(DisparityRange.from_depths(float(np.nanmin(z)), float(np.nanmax(z)), plane.fx, plane.baseline))
+
+
+def test_raw_dataset_is_rectified_with_its_calibration(plane, tmp_path):
+    import shutil
+
+    raw = tmp_path / "raw"
+    shutil.copytree(plane.root, raw)
+    meta = json.loads((raw / "dataset.json").read_text())
+    meta["camera"] = {**(meta.get("camera") or {}), "rectified": False}
+    (raw / "dataset.json").write_text(json.dumps(meta))
+    fs = cv2.FileStorage(str(raw / "calibration.yaml"), cv2.FILE_STORAGE_WRITE)
+    for key, value in {"K1": plane.K, "D1": np.zeros((1, 5)), "K2": plane.K, "D2": np.zeros((1, 5)), "R": np.eye(3),
+                       "T": np.array([[-plane.baseline], [0.0], [0.0]])}.items():
+        fs.write(key, value)
+    fs.write("image_width", plane.width)
+    fs.write("image_height", plane.height)
+    fs.release()
+    left, right = _real_pair(plane, tmp_path)
+    disparity = tmp_path / "disparity.npy"
+    np.save(disparity, plane.gt("left", 0, ("disparity",))["disparity"])
+    out = tmp_path / "o"
+    assert main(["realism", str(raw), "--real", left, right, "--real-disparity", str(disparity),
+                 "--methods", "sgbm", "-o", str(out)]) == 0
+    report = json.loads((out / "realism.json").read_text())
+    assert any("raw dataset" in n for n in report["notes"])
+    assert any("calibration.yaml" in n for n in report["notes"] if n.startswith("real pair"))
+    rows = {r["measure"]: r for r in report["rows"]}
+    assert "SGBM EPE" not in rows  # no ground-truth disparity in the rectified grid of a raw dataset
+    # both pairs went through the same rectification: the same figures; and an already rectified rig
+    # matches about as densely as without it
+    assert rows["SGBM density"]["ratio"] == pytest.approx(1.0)
+    direct = stereo.score_pair(sgbm_for(plane), plane.rgb("left", 0), plane.rgb("right", 0),
+                               np.ones((plane.height, plane.width), bool))
+    assert rows["SGBM density"]["render"] == pytest.approx(direct.density, abs=0.1)
