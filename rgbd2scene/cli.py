@@ -509,9 +509,9 @@ def _args_realism(p: argparse.ArgumentParser) -> None:
     p.add_argument("--real", nargs="+", required=True, metavar="IMAGE", help="the real LEFT image, and the RIGHT one "
                    "for the stereo difficulty rows")
     p.add_argument("--real-disparity", metavar="FILE", help="the real pair's left ground-truth disparity (.npy or "
-                   ".pfm, pixels): adds the SGBM and ELAS error rows")
-    p.add_argument("--real-mask", metavar="IMAGE", help="the real frame's valid pixels (at least half scale); the "
-                   "same pixels are measured in the render")
+                   ".pfm, pixels; of the rectified pair when --real-calib is given): adds the SGBM and ELAS error rows")
+    p.add_argument("--real-mask", metavar="IMAGE", help="the real frames' valid pixels (at least half scale; one "
+                   "mask for both eyes); the same pixels are measured in the render")
     p.add_argument("--real-calib", metavar="CALIB", help="stereo calibration of a raw real pair (JSON or Hamlyn "
                    "folder, as --stereo-calib): rectified before matching (default: the dataset's calibration.yaml "
                    "for a raw dataset, else the pair is taken as rectified)")

@@ -272,7 +272,7 @@ def test_real_frame_of_another_size_is_an_error_and_writes_nothing(plane, tmp_pa
 
 @pytest.mark.parametrize("case, message", [
     ("missing", "not found"), ("mask_size", "mask is"), ("three", "--real takes"), ("frame", "no rendered frame"),
-    ("disparity_mono", "needs the right image"),
+    ("disparity_mono", "needs the right image"), ("method", "unknown method"),
 ])
 def test_bad_inputs_exit_2(plane, tmp_path, capsys, case, message):
     left, right = _real_pair(plane, tmp_path)
@@ -282,7 +282,8 @@ def test_bad_inputs_exit_2(plane, tmp_path, capsys, case, message):
             "mask_size": ["--real", left, "--real-mask", str(mask)],
             "three": ["--real", left, right, left],
             "frame": ["--real", left, "--frame", "7"],
-            "disparity_mono": ["--real", left, "--real-disparity", str(tmp_path / "d.npy")]}[case]
+            "disparity_mono": ["--real", left, "--real-disparity", str(tmp_path / "d.npy")],
+            "method": ["--real", left, right, "--methods", "sgbm,bm"]}[case]
     assert main(["realism", str(plane.root), *args, "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and message in err[0]
