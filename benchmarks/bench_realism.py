@@ -161,12 +161,15 @@ def render_look(name: str, options: list[str], frames: tuple[int, ...], size: tu
     folder = WORK / name.replace(" ", "_")
     if folder.exists():
         shutil.rmtree(folder)
-    scene, dataset = folder / "scene", folder / "dataset"
+    scene = folder / "scene"
     _cli("scene", "--rgb", str(SAMPLE / "rgb.png"), "--depth", str(SAMPLE / "depth.png"),
          "--camera", str(SAMPLE / "camera.json"), "--frames", str(PATH_FRAMES), "--no-overview",
          *options, "-o", str(scene))
     images, cpu = [], []
     for f in frames:
+        # one dataset folder per frame: resuming a gt="none" dataset fails its settings check (render.gt: the
+        # stored [] reads back as "" against "none")
+        dataset = folder / f"dataset_{f:06d}"
         summary = render_dataset(scene, dataset, start=f, end=f + 1, gt="none", size=size, progress=False)
         cpu.append(summary["cpu_seconds_per_frame"])
         images += [read_image(dataset / eye / "rgb" / f"{f:06d}.png") for eye in ("left", "right")]
