@@ -63,7 +63,7 @@ sys.path.insert(0, str(ROOT))
 
 from rgbd2scene.files.atomic import write_text  # noqa: E402
 from rgbd2scene.files.images import read_image  # noqa: E402
-from rgbd2scene.reconstruct.texture import HighlightSettings  # noqa: E402
+from rgbd2scene.realism import measures  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
@@ -91,23 +91,7 @@ SLOPE_RANGE = (0.02, 0.4)
 FRACTION_FLOOR = 1e-6
 
 
-# --- statistics -----------------------------------------------------------------------------------------
-
-def contrast(rgb: np.ndarray) -> np.ndarray:
-    """Luminance (Rec. 601 weights on the 8-bit values) divided by its mean: float64 (H, W)."""
-    grey = np.asarray(rgb, np.float64) @ np.array([0.299, 0.587, 0.114])
-    return grey / max(grey.mean(), 1e-9)
-
-
-def power_spectrum(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Spatial frequency (cycles/px) and power per pixel of every FFT coefficient of a Hann-windowed image."""
-    h, w = image.shape
-    window = np.outer(np.hanning(h), np.hanning(w))
-    centred = (image - image.mean()) * window
-    power = np.abs(np.fft.fft2(centred)) ** 2 / np.sum(window**2)
-    fy, fx = np.meshgrid(np.fft.fftfreq(h), np.fft.fftfreq(w), indexing="ij")
-    return np.hypot(fx, fy).ravel(), power.ravel()
-
+# --- statistics (the measures live in rgbd2scene.realism.measures) -----------------------------------------
 
 @dataclass
 class Stats:
@@ -124,33 +108,15 @@ class Stats:
 
 def image_stats(images: list[np.ndarray]) -> Stats:
     """Statistics pooled over ``images`` (RGB uint8): spectra averaged per band, pixels pooled."""
-    freq_power = [power_spectrum(contrast(img)) for img in images]
-    band_db = np.empty(len(BAND_EDGES) - 1)
-    for b, (lo, hi) in enumerate(zip(BAND_EDGES[:-1], BAND_EDGES[1:], strict=True)):
-        band_db[b] = 10 * np.log10(np.mean([p[(f >= lo) & (f < hi)].mean() for f, p in freq_power]))
-    centres = np.sqrt(BAND_EDGES[:-1] * BAND_EDGES[1:])
-    fit = (centres >= SLOPE_RANGE[0]) & (centres <= SLOPE_RANGE[1])
-    slope = float(np.polyfit(np.log10(centres[fit]), band_db[fit] / 10, 1)[0])
-
-    gx, gy = [], []
-    for img in images:
-        dy, dx = np.gradient(contrast(img))
-        gx.append(dx.ravel())
-        gy.append(dy.ravel())
-    gx, gy = np.concatenate(gx), np.concatenate(gy)
-    magnitude = np.hypot(gx, gy)
-    components = np.concatenate([gx, gy])
-    kurtosis = float(np.mean(components**4) / np.mean(components**2) ** 2 - 3.0)
-    p50, p90, p99 = np.percentile(magnitude, [50, 90, 99])
-    gradient = {"gradient mean": float(magnitude.mean()), "gradient p50": float(p50), "gradient p90": float(p90),
-                "gradient p99": float(p99), "gradient kurtosis": kurtosis}
-
-    pixels = np.concatenate([np.asarray(img, np.float64).reshape(-1, 3) / 255.0 for img in images])
-    value, low = pixels.max(axis=1), pixels.min(axis=1)
-    saturation = np.where(value > 0, (value - low) / np.maximum(value, 1e-9), 0.0)
-    core = HighlightSettings()
-    white = (value >= core.core_value) & (saturation <= core.core_saturation)
-    colour = {"saturation mean": float(saturation.mean()), "near-white fraction": float(white.mean())}
+    band_db = measures.band_power_db([measures.power_spectrum(measures.contrast_image(img)) for img in images],
+                                     BAND_EDGES)
+    slope = measures.spectral_slope(band_db, BAND_EDGES, SLOPE_RANGE)
+    components = [measures.gradients(img) for img in images]
+    gradient = measures.gradient_stats(np.concatenate([c[0] for c in components]),
+                                       np.concatenate([c[1] for c in components]))
+    pooled = np.concatenate([img.reshape(-1, 1, 3) for img in images])
+    colour = {"saturation mean": measures.mean_saturation(pooled),
+              "near-white fraction": measures.highlight_share(pooled)}
     return Stats(band_db, slope, gradient, colour)
 
 
@@ -195,12 +161,15 @@ def render_look(name: str, options: list[str], frames: tuple[int, ...], size: tu
     folder = WORK / name.replace(" ", "_")
     if folder.exists():
         shutil.rmtree(folder)
-    scene, dataset = folder / "scene", folder / "dataset"
+    scene = folder / "scene"
     _cli("scene", "--rgb", str(SAMPLE / "rgb.png"), "--depth", str(SAMPLE / "depth.png"),
          "--camera", str(SAMPLE / "camera.json"), "--frames", str(PATH_FRAMES), "--no-overview",
          *options, "-o", str(scene))
     images, cpu = [], []
     for f in frames:
+        # one dataset folder per frame: resuming a gt="none" dataset fails its settings check (render.gt: the
+        # stored [] reads back as "" against "none")
+        dataset = folder / f"dataset_{f:06d}"
         summary = render_dataset(scene, dataset, start=f, end=f + 1, gt="none", size=size, progress=False)
         cpu.append(summary["cpu_seconds_per_frame"])
         images += [read_image(dataset / eye / "rgb" / f"{f:06d}.png") for eye in ("left", "right")]

@@ -364,6 +364,24 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+def cmd_realism(args) -> int:
+    from rgbd2scene.realism import run_realism
+    from rgbd2scene.realism.report import markdown_table, summary_line
+
+    if len(args.real) > 2:
+        raise UserError(f"realism: --real takes the LEFT image and optionally the RIGHT one, got {len(args.real)}")
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip() and m.strip() != "none")
+    result = run_realism(args.dataset, args.real[0], args.real[1] if len(args.real) > 1 else None, out=args.output,
+                         frame=args.frame, mask=args.real_mask, real_disparity=args.real_disparity,
+                         real_calib=args.real_calib, methods=methods, surface_only=args.surface_only)
+    print(markdown_table(result.report))
+    print(f"\n{summary_line(result.report)}")
+    for note in result.report.notes:
+        print(f"note: {note}")
+    print(f"table: {result.markdown}, {result.json}; picture: {result.picture}")
+    return 0
+
+
 def cmd_dataset(args) -> int:
     if args.status is not None:
         if args.config or args.output:
@@ -486,6 +504,24 @@ def _args_evaluate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+def _args_realism(p: argparse.ArgumentParser) -> None:
+    p.add_argument("dataset", help="dataset folder (rendered at the real frame's size)")
+    p.add_argument("--real", nargs="+", required=True, metavar="IMAGE", help="the real LEFT image, and the RIGHT one "
+                   "for the stereo difficulty rows")
+    p.add_argument("--real-disparity", metavar="FILE", help="the real pair's left ground-truth disparity (.npy or "
+                   ".pfm, pixels; of the rectified pair when --real-calib is given): adds the SGBM and ELAS error rows")
+    p.add_argument("--real-mask", metavar="IMAGE", help="the real frames' valid pixels (at least half scale; one "
+                   "mask for both eyes); the same pixels are measured in the render")
+    p.add_argument("--real-calib", metavar="CALIB", help="stereo calibration of a raw real pair (JSON or Hamlyn "
+                   "folder, as --stereo-calib): rectified before matching (default: the dataset's calibration.yaml "
+                   "for a raw dataset, else the pair is taken as rectified)")
+    p.add_argument("--surface-only", action="store_true", help="measure only the pixels where the rendered frame "
+                   "sees a surface (a twin's mesh may not cover the whole view), in both images")
+    p.add_argument("--frame", type=int, default=0, help="the rendered frame to compare (default 0)")
+    p.add_argument("--methods", default="sgbm,elas", help="stereo methods: comma list of sgbm, elas, or none")
+    p.add_argument("-o", "--output", help="output folder (default DATASET/realism)")
+
+
 #: command -> (help, the function adding its arguments, the function running it)
 COMMANDS = {
     "mesh": ("fill holes, back-project and smooth: OUT/mesh.ply and OUT/scene.json", _args_mesh, cmd_mesh),
@@ -500,6 +536,8 @@ COMMANDS = {
     "export": ("the dataset in a standard layout: KITTI, SceneFlow or VisionBlender npz", _args_export, cmd_export),
     "evaluate": ("stereo benchmark: SGBM, ELAS and external predictions scored against the ground truth",
                  _args_evaluate, cmd_evaluate),
+    "realism": ("how close rendered frames are to real ones: a table render / real and a side-by-side picture",
+                _args_realism, cmd_realism),
 }
 
 
