@@ -40,13 +40,21 @@ def _add_capture_args(p: argparse.ArgumentParser) -> None:
     add_arguments(p.add_argument_group("reconstruction"), MeshOptions)
 
 
-def _reconstruct(args):
-    """The reconstruction of the capture arguments: one RGB-D frame, several fused, or a stereo frame."""
+def _load(args):
+    """The capture of the arguments, read and checked (before anything is written)."""
+    from rgbd2scene.options import from_args
+    from rgbd2scene.stages.capture import CaptureOptions, load_inputs
+
+    return load_inputs(from_args(CaptureOptions, args))
+
+
+def _reconstruct(args, loaded):
+    """The reconstruction of a loaded capture: one RGB-D frame, several fused, or a stereo frame."""
     from rgbd2scene.options import from_args
     from rgbd2scene.reconstruct.pipeline import MeshOptions
-    from rgbd2scene.stages.capture import CaptureOptions, load_inputs, reconstruct_inputs
+    from rgbd2scene.stages.capture import reconstruct_inputs
 
-    return reconstruct_inputs(load_inputs(from_args(CaptureOptions, args)), from_args(MeshOptions, args))
+    return reconstruct_inputs(loaded, from_args(MeshOptions, args))
 
 
 def _report(recon) -> str:
@@ -74,8 +82,9 @@ def cmd_mesh(args) -> int:
     from rgbd2scene.stages.mesh import write_mesh_folder
 
     t0 = time.perf_counter()
+    loaded = _load(args)
     ensure_output_dir(args.output)
-    recon = _reconstruct(args)
+    recon = _reconstruct(args, loaded)
     write_mesh_folder(args.output, recon)
     print(f"{_report(recon)}, total {time.perf_counter() - t0:.2f}s")
     print(f"{len(recon.mesh.vertices)} vertices, {len(recon.mesh.triangles)} triangles -> {args.output}/mesh.ply")
@@ -100,17 +109,18 @@ def cmd_scene(args) -> int:
 
     t0 = time.perf_counter()
     options = from_args(SceneOptions, args)
-    config = scene_config(options)  # a bad configuration fails before the reconstruction
-    out = ensure_output_dir(args.output)
-    if args.mesh_dir:
-        mesh, record = load_mesh_folder(args.mesh_dir, out)
-    elif from_args(CaptureOptions, args).given():
-        recon = _reconstruct(args)
-        write_mesh_folder(out, recon, finalize=False)
-        mesh, record = recon.mesh, scene_record(recon)
-    else:
+    config = scene_config(options)  # a bad configuration or capture fails before anything is written
+    if not args.mesh_dir and not from_args(CaptureOptions, args).given():
         raise UserError("scene: give a capture (--rgb and --depth, or --left, --right and --stereo-calib) or "
                         "--mesh-dir (a mesh folder)")
+    loaded = None if args.mesh_dir else _load(args)
+    out = ensure_output_dir(args.output)
+    if loaded is None:
+        mesh, record = load_mesh_folder(args.mesh_dir, out)
+    else:
+        recon = _reconstruct(args, loaded)
+        write_mesh_folder(out, recon, finalize=False)
+        mesh, record = recon.mesh, scene_record(recon)
     record = build_scene_folder(out, mesh, record, options, config=config)
     cov = record["coverage"]
     print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "

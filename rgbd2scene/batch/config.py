@@ -85,6 +85,8 @@ CAPTURE_KEYS = tuple(f.name for f in fields(CaptureOptions))
 #: Input keys that name files, and those of them that may be globs giving one capture per match.
 _FILE_KEYS = tuple(f.name for f in fields(CaptureOptions) if f.metadata.get("file"))
 _PER_MATCH = ("rgb", "left")
+#: Input keys that take a list (the frames of a fused sequence).
+_LIST_KEYS = ("rgb", "depth")
 
 
 class _CaptureBase(_Strict):
@@ -519,7 +521,7 @@ def _expand_inputs(inputs: dict, base: Path, where: str) -> dict[tuple, dict]:
         value = inputs.get(name)
         if value is None:
             continue
-        if isinstance(value, list):
+        if isinstance(value, list) and name in _LIST_KEYS:
             if not all(isinstance(v, str) for v in value):
                 raise OptionError(f"{where}.{name}", f"give a file, or a list of files, got {value!r}")
             files = [str(p) for i, v in enumerate(value)

@@ -59,6 +59,8 @@ def build_mesh(capture, out_dir: str) -> Outcome:
             recon = reconstruct_inputs(load_inputs(capture.inputs), capture.mesh)
         except OptionError as exc:  # named by the configuration's key
             raise UserError(exc.render(where=capture.where)) from None
+        except UserError as exc:  # names the file; the entry too
+            raise UserError(f"{capture.where}: {exc}") from None
         write_mesh_folder(out_dir, recon)
         return 0.0
 

@@ -195,18 +195,20 @@ def read_poses(path: str, frames: list[str]) -> tuple[np.ndarray, dict]:
 
 
 def read_calibration(path: str, left: str) -> StereoCalibration:
-    """The stereo calibration ``path`` (a folder takes the image size from ``left``); :class:`OptionError` on
-    ``stereo_calib`` naming the file and the problem."""
+    """The stereo calibration ``path`` of the images ``left`` (and right), checked against their size;
+    :class:`OptionError` on ``stereo_calib`` naming the file and the problem."""
     if not Path(path).exists():
         raise OptionError("stereo_calib", f"{path}: stereo calibration not found")
-    size = None
-    if Path(path).is_dir():
-        image = read_rgb(left)
-        size = (image.shape[1], image.shape[0])
+    image = read_rgb(left)
+    size = (image.shape[1], image.shape[0])
     try:
-        return read_stereo_calibration(path, image_size=size)
+        calib = read_stereo_calibration(path, image_size=size)  # a folder takes the images' size
     except (OSError, ValueError) as exc:
         raise OptionError("stereo_calib", f"{path}: bad stereo calibration: {exc}") from None
+    if calib.size != size:
+        raise OptionError("stereo_calib", f"{left}: the images are {size[0]}x{size[1]} but the calibration {path} "
+                          f"is for {calib.width}x{calib.height}")
+    return calib
 
 
 def check_inputs(options: CaptureOptions) -> str:
