@@ -30,12 +30,14 @@ variations:                        # drawn per sequence, over any SceneOptions f
   deform: {choice: [none, breathing]}       # explicit forms: {uniform: [lo, hi]}, {choice: [...]}
 ```
 
-The structure is checked with pydantic; a capture's input keys are the fields of the capture stage's
-:class:`~rgbd2scene.stages.capture.CaptureOptions` (the CLI's capture flags), checked by the stage itself
-(:func:`~rgbd2scene.stages.capture.check_inputs`: the same errors as on the command line, the trajectory and
-the stereo calibration read at once); the ``mesh``, ``scene`` and ``render`` mappings and the variations go
-through the options dataclasses (:func:`rgbd2scene.options.from_mapping`), so options other stages add are
-configuration keys at once. Every problem is one :class:`UserError` line ``CONFIG: key.path: problem``.
+The file is read and its structure checked by the configuration stack the scene configuration shares
+(:mod:`rgbd2scene.config_files`: YAML or TOML, pydantic models refusing unknown keys). A capture's input keys
+are the fields of the capture stage's :class:`~rgbd2scene.stages.capture.CaptureOptions` (the CLI's capture
+flags), checked by the stage itself (:func:`~rgbd2scene.stages.capture.check_inputs`: the same errors as on
+the command line, the trajectory and the stereo calibration read at once); the ``mesh``, ``scene`` and
+``render`` mappings and the variations go through the options dataclasses
+(:func:`rgbd2scene.options.from_mapping`), so options other stages add are configuration keys at once.
+Every problem is one :class:`UserError` line ``CONFIG: key.path: problem``.
 """
 
 from __future__ import annotations
@@ -44,14 +46,14 @@ import glob
 import json
 import os
 import re
-import tomllib
 import typing
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model, field_validator, model_validator
+from pydantic import Field, ValidationError, create_model, field_validator, model_validator
 
+from rgbd2scene.config_files import ConfigError, Strict, read_config_file, validation_error
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import OptionError, from_mapping
 from rgbd2scene.reconstruct.pipeline import MeshOptions
@@ -61,7 +63,6 @@ from rgbd2scene.stages.render import RenderOptions
 from rgbd2scene.stages.scene import SceneOptions
 
 SPLITS = ("train", "val", "test")
-SUFFIXES = {".yaml": "YAML", ".yml": "YAML", ".toml": "TOML"}
 #: SceneOptions fields each sequence gets from the plan, never from the configuration's ``scene`` or variations.
 PLANNED_SCENE_KEYS = {"path": "sequences.paths", "frames": "sequences.frames",
                       "seed": "the sequence seed (from seed and the sequence name)"}
@@ -76,10 +77,6 @@ CONFIG_FORMAT = "rgbd2scene-batch-config"
 
 # --- the file's structure (pydantic) ----------------------------------------------------------------------
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-
-
 #: A capture entry's input keys: the capture stage's options (their values are checked by the stage).
 CAPTURE_KEYS = tuple(f.name for f in fields(CaptureOptions))
 #: Input keys that name files, and those of them that may be globs giving one capture per match.
@@ -89,7 +86,7 @@ _PER_MATCH = ("rgb", "left")
 _LIST_KEYS = ("rgb", "depth")
 
 
-class _CaptureBase(_Strict):
+class _CaptureBase(Strict):
     """One ``captures`` entry as written (paths not yet resolved, globs not yet expanded): its name, split,
     scene and mesh settings, and (:data:`CaptureEntry`) the capture stage's input keys."""
 
@@ -146,13 +143,13 @@ class _CaptureBase(_Strict):
 CaptureEntry = create_model("CaptureEntry", __base__=_CaptureBase, **{key: (Any, None) for key in CAPTURE_KEYS})
 
 
-class SequencesEntry(_Strict):
+class SequencesEntry(Strict):
     per_capture: int = Field(1, ge=1)
     frames: int = Field(30, ge=1)
     paths: list[str] = Field(default_factory=lambda: ["scan"], min_length=1)
 
 
-class ConfigFile(_Strict):
+class ConfigFile(Strict):
     seed: int = Field(0, ge=0)
     captures: list[CaptureEntry] = Field(min_length=1)
     sequences: SequencesEntry = Field(default_factory=SequencesEntry)
@@ -279,62 +276,12 @@ class BatchConfig:
 
 # --- loading ---------------------------------------------------------------------------------------------
 
-def _key_path(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
-
-
-def _pydantic_error(path: Path, exc: ValidationError) -> UserError:
-    err = exc.errors()[0]
-    loc = tuple(err["loc"])
-    if err["type"] == "extra_forbidden":
-        model = ConfigFile
-        for part in loc[:-1]:  # the model whose keys are listed
-            if isinstance(part, str):
-                hint = model.model_fields[part].annotation
-                args = typing.get_args(hint)
-                model = next((a for a in (hint, *args) if isinstance(a, type) and issubclass(a, BaseModel)), model)
-        message = f"unknown key (known: {', '.join(model.model_fields)})"
-    elif err["type"] == "missing":
-        message = "required"
-    else:
-        message = err["msg"].removeprefix("Value error, ")
-        if "input" in err and err["type"] not in ("value_error",) and not isinstance(err["input"], dict):
-            message += f", got {err['input']!r}"
-    more = f" (and {exc.error_count() - 1} more problems)" if exc.error_count() > 1 else ""
-    return UserError(f"{path}: {_key_path(loc) or 'top level'}: {message}{more}")
-
-
 def read_mapping(path: Path) -> dict:
-    """The configuration file's contents (YAML or TOML, by suffix) as a mapping."""
-    kind = SUFFIXES.get(path.suffix.lower())
-    if kind is None:
-        raise UserError(f"{path}: unknown configuration format (use .yaml, .yml or .toml)")
+    """The configuration file's contents (YAML or TOML, by suffix) as a mapping; :class:`UserError` naming the file."""
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise UserError(f"{path}: configuration file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not readable ({exc})") from None
-    if kind == "TOML":
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise UserError(f"{path}: not valid TOML ({exc})") from None
-    else:
-        import yaml
-
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-            raise UserError(f"{path}: not valid YAML ({where}{getattr(exc, 'problem', None) or exc})") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: the configuration must be a mapping of keys (seed, captures, ...)")
-    return data
+        return read_config_file(path)
+    except ConfigError as exc:
+        raise UserError(f"{path}: {exc}") from None
 
 
 def load_config(path: str | Path) -> BatchConfig:
@@ -345,7 +292,7 @@ def load_config(path: str | Path) -> BatchConfig:
     try:
         raw = ConfigFile.model_validate(data)
     except ValidationError as exc:
-        raise _pydantic_error(path, exc) from None
+        raise UserError(f"{path}: {validation_error(exc, ConfigFile)}") from None
     try:
         return _resolve(path, raw)
     except OptionError as exc:
