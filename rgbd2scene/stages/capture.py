@@ -27,9 +27,18 @@ import numpy as np
 
 from rgbd2scene.capture.camera import PRESET_SENSOR, PRESETS, camera_for
 from rgbd2scene.capture.readers import DEPTH_FORMATS, Capture, load_capture, read_rgb
-from rgbd2scene.capture.stereo import MATCHERS, StereoCalibration, StereoOptions, read_stereo_calibration
+from rgbd2scene.capture.stereo import (
+    MATCHERS,
+    StereoCalibration,
+    StereoOptions,
+    load_stereo_capture,
+    read_stereo_calibration,
+)
+from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import OptionError, option, to_record
+from rgbd2scene.reconstruct.fusion import FusionOptions, reconstruct_fused
+from rgbd2scene.reconstruct.pipeline import MeshOptions, Reconstruction, reconstruct
 
 INPUT = "capture (an RGB-D frame, several frames to fuse, or a stereo frame)"
 FUSION = "fusion of several frames"
@@ -142,9 +151,7 @@ class CaptureOptions:
             stereo.min_depth, stereo.max_depth = (float(v) for v in self.depth_range)
         return stereo
 
-    def fusion_options(self):
-        from rgbd2scene.reconstruct.fusion import FusionOptions
-
+    def fusion_options(self) -> FusionOptions:
         fusion = FusionOptions(voxel_size=self.voxel_size)
         if self.min_frames is not None:
             fusion.min_frames = self.min_frames
@@ -168,7 +175,7 @@ class LoadedCapture:
     frames: list[Capture]
     poses: np.ndarray | None = None
     poses_record: dict | None = None
-    fusion: object | None = None  # rgbd2scene.reconstruct.fusion.FusionOptions
+    fusion: FusionOptions | None = None
     options: CaptureOptions = field(default_factory=CaptureOptions)
 
     @property
@@ -179,8 +186,6 @@ class LoadedCapture:
 def read_poses(path: str, frames: list[str]) -> tuple[np.ndarray, dict]:
     """Poses of ``frames`` (file names, in order) from the trajectory ``path``, relative to the first frame,
     and their scene.json record; :class:`OptionError` on ``poses`` naming the file and the problem."""
-    from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
-
     try:
         trajectory = read_trajectory(path)
         match = associate(trajectory, frames)
@@ -237,8 +242,6 @@ def load_inputs(options: CaptureOptions) -> LoadedCapture:
     depth sensor its preset names)."""
     mode = check_inputs(options)
     if mode == "stereo":
-        from rgbd2scene.capture.stereo import load_stereo_capture
-
         frame = load_stereo_capture(options.left, options.right, options.stereo_calib, options.stereo_options())
         return LoadedCapture(mode, [frame], options=options)
     intr, scale = camera_for(options.camera, options.preset, options.depth_scale)
@@ -251,15 +254,11 @@ def load_inputs(options: CaptureOptions) -> LoadedCapture:
     return LoadedCapture(mode, frames, poses, record, options.fusion_options(), options)
 
 
-def reconstruct_inputs(loaded: LoadedCapture, mesh=None):
-    """The reconstruction of a loaded capture with ``mesh`` (:class:`MeshOptions`): one frame (RGB-D or stereo)
-    filled, meshed and smoothed, or several fused."""
-    from rgbd2scene.reconstruct.pipeline import reconstruct
-
+def reconstruct_inputs(loaded: LoadedCapture, mesh: MeshOptions | None = None) -> Reconstruction:
+    """The reconstruction of a loaded capture: one frame (RGB-D or stereo) filled, meshed and smoothed, or
+    several fused (fill and smoothing then default to none)."""
     if loaded.mode != "fusion":
         return reconstruct(loaded.first, mesh)
-    from rgbd2scene.reconstruct.fusion import reconstruct_fused
-
     try:
         return reconstruct_fused(loaded.frames, loaded.poses, mesh, loaded.fusion, poses_record=loaded.poses_record)
     except OptionError:
