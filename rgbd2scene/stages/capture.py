@@ -20,7 +20,7 @@ on the command line, ``captures[0].poses`` in a configuration) or :class:`UserEr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +36,7 @@ from rgbd2scene.capture.stereo import (
 )
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
 from rgbd2scene.errors import UserError
-from rgbd2scene.options import OptionError, option, to_record
+from rgbd2scene.options import OptionError, option
 from rgbd2scene.reconstruct.fusion import FusionOptions, reconstruct_fused
 from rgbd2scene.reconstruct.pipeline import MeshOptions, Reconstruction, reconstruct
 
@@ -157,9 +157,6 @@ class CaptureOptions:
             fusion.min_frames = self.min_frames
         return fusion
 
-    def to_dict(self) -> dict:
-        return to_record(self)
-
 
 def _default(name: str):
     return CaptureOptions.__dataclass_fields__[name].default
@@ -176,7 +173,6 @@ class LoadedCapture:
     poses: np.ndarray | None = None
     poses_record: dict | None = None
     fusion: FusionOptions | None = None
-    options: CaptureOptions = field(default_factory=CaptureOptions)
 
     @property
     def first(self) -> Capture:
@@ -243,15 +239,15 @@ def load_inputs(options: CaptureOptions) -> LoadedCapture:
     mode = check_inputs(options)
     if mode == "stereo":
         frame = load_stereo_capture(options.left, options.right, options.stereo_calib, options.stereo_options())
-        return LoadedCapture(mode, [frame], options=options)
+        return LoadedCapture(mode, [frame])
     intr, scale = camera_for(options.camera, options.preset, options.depth_scale)
     sensor = PRESET_SENSOR[options.preset.lower()] if options.preset else None
     frames = [load_capture(rgb, depth, intr, depth_scale=scale, depth_format=options.depth_format, sensor=sensor)
               for rgb, depth in zip(options.rgb, options.depth, strict=True)]
     if mode == "rgbd":
-        return LoadedCapture(mode, frames, options=options)
+        return LoadedCapture(mode, frames)
     poses, record = read_poses(options.poses, options.rgb) if options.poses else (None, None)
-    return LoadedCapture(mode, frames, poses, record, options.fusion_options(), options)
+    return LoadedCapture(mode, frames, poses, record, options.fusion_options())
 
 
 def reconstruct_inputs(loaded: LoadedCapture, mesh: MeshOptions | None = None) -> Reconstruction:
