@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from rgbd2scene.errors import RenderError, UserError
+from rgbd2scene.options import OptionError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -31,149 +32,29 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def _add_capture_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("capture (an RGB-D frame, several frames to fuse, or a stereo frame)")
-    g.add_argument("--rgb", nargs="+", help="colour image(s) (PNG, JPEG, PPM, BMP); several frames are fused")
-    g.add_argument("--depth", nargs="+", help="depth: 16-bit PNG, float EXR/.npy (m), NYU raw PGM, SUN PNG; "
-                   "one per --rgb")
-    g.add_argument("--poses", help="camera trajectory of the frames: TUM (timestamp tx ty tz qx qy qz qw) or "
-                   "Redwood/Open3D .log; default: estimated by RGB-D odometry")
-    cam = g.add_mutually_exclusive_group()
-    cam.add_argument("--camera", help="camera JSON: {width,height,fx,fy,cx,cy} or Open3D intrinsic_matrix")
-    cam.add_argument("--preset", help="named camera: primesense (default), kinect_v1, tum_fr1, tum_fr2, tum_fr3")
-    g.add_argument("--depth-scale", type=float, help="depth units per metre (1000 for mm PNG, 5000 for TUM)")
-    g.add_argument("--depth-format", default="auto", help="auto, png, sun, nyu, exr, npy")
-    g.add_argument("--left", help="left image of a stereo endoscope frame")
-    g.add_argument("--right", help="right image of the stereo frame")
-    g.add_argument("--stereo-calib", help="stereo calibration: JSON (K_left, D_left, K_right, D_right, R, T in "
-                   "metres, image_size) or a Hamlyn-style folder (calib.left.intrinsic.txt, ..., calib.l2r.4x4 in mm)")
     from rgbd2scene.options import add_arguments
     from rgbd2scene.reconstruct.pipeline import MeshOptions
+    from rgbd2scene.stages.capture import CaptureOptions
 
+    add_arguments(p, CaptureOptions)
     add_arguments(p.add_argument_group("reconstruction"), MeshOptions)
-    f = p.add_argument_group("fusion of several frames")
-    f.add_argument("--voxel-size", type=float, help="TSDF voxel edge in metres (default 1.5 pixel footprints at "
-                   "the first frame's median depth)")
-    f.add_argument("--min-frames", type=int, help="keep surface seen by at least this many frames (default 1)")
-    s = p.add_argument_group("stereo")
-    s.add_argument("--matcher", default="auto", choices=("auto", "sgbm", "elas"),
-                   help="stereo matcher (default auto: ELAS when pyelas is installed, else SGBM)")
-    s.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),
-                   help="expected depth range in metres; sets the disparities searched (default 0.02 0.5)")
 
 
-def _has_capture_input(args) -> bool:
-    return any(getattr(args, name) for name in ("rgb", "depth", "left", "right", "stereo_calib"))
+def _load(args):
+    """The capture of the arguments, read and checked (before anything is written)."""
+    from rgbd2scene.options import from_args
+    from rgbd2scene.stages.capture import CaptureOptions, load_inputs
+
+    return load_inputs(from_args(CaptureOptions, args))
 
 
-def _check_inputs(args) -> str:
-    """The input mode ("rgbd", "fusion" or "stereo") of the capture arguments, or a one-line UserError
-    (also when options of another mode are given: they would be ignored)."""
-    mode = _input_mode(args)
-    foreign = {"--voxel-size": args.voxel_size is not None and mode != "fusion",
-               "--min-frames": args.min_frames is not None and mode != "fusion",
-               "--matcher": args.matcher != "auto" and mode != "stereo",
-               "--depth-range": args.depth_range is not None and mode != "stereo"}
-    given = [flag for flag, wrong in foreign.items() if wrong]
-    if given:
-        what = {"rgbd": "a single RGB-D frame", "fusion": "fused RGB-D frames", "stereo": "a stereo frame"}[mode]
-        raise UserError(f"{', '.join(given)} do(es) not apply to {what}")
-    return mode
+def _reconstruct(args, loaded):
+    """The reconstruction of a loaded capture: one RGB-D frame, several fused, or a stereo frame."""
+    from rgbd2scene.options import from_args
+    from rgbd2scene.reconstruct.pipeline import MeshOptions
+    from rgbd2scene.stages.capture import reconstruct_inputs
 
-
-def _input_mode(args) -> str:
-    stereo = {"--left": args.left, "--right": args.right, "--stereo-calib": args.stereo_calib}
-    if any(stereo.values()):
-        if args.rgb or args.depth or args.poses:
-            raise UserError("give an RGB-D capture (--rgb, --depth, --poses) or a stereo frame (--left, --right, "
-                            "--stereo-calib), not both")
-        missing = [flag for flag, value in stereo.items() if not value]
-        if missing:
-            raise UserError(f"a stereo frame needs --left, --right and --stereo-calib (missing {', '.join(missing)})")
-        rgbd_only = [flag for flag, given in (("--camera", args.camera), ("--preset", args.preset),
-                                              ("--depth-scale", args.depth_scale is not None),
-                                              ("--depth-format", args.depth_format != "auto")) if given]
-        if rgbd_only:
-            raise UserError(f"{', '.join(rgbd_only)} do(es) not apply to a stereo frame (the calibration gives "
-                            "the camera, stereo matching the depth)")
-        return "stereo"
-    if not args.rgb or not args.depth:
-        raise UserError("give --rgb and --depth (an RGB-D capture; several of each to fuse frames) or --left, "
-                        "--right and --stereo-calib (a stereo frame)")
-    if len(args.rgb) != len(args.depth):
-        raise UserError(f"--rgb has {len(args.rgb)} files but --depth has {len(args.depth)}; give one depth per "
-                        "colour image")
-    if len(args.rgb) == 1:
-        if args.poses:
-            raise UserError("--poses needs several frames (--rgb A B ... --depth A B ...)")
-        return "rgbd"
-    return "fusion"
-
-
-def _intrinsics_and_scale(args):
-    from rgbd2scene.capture.camera import camera_for
-
-    return camera_for(args.camera, args.preset, args.depth_scale)
-
-
-def _load_captures(args) -> list:
-    from rgbd2scene.capture.readers import load_capture
-
-    intr, scale = _intrinsics_and_scale(args)
-    return [load_capture(rgb, depth, intr, depth_scale=scale, depth_format=args.depth_format)
-            for rgb, depth in zip(args.rgb, args.depth, strict=True)]
-
-
-def _given_poses(args):
-    """Poses of the frames from --poses, relative to the first frame, and their scene.json record."""
-    from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
-
-    try:
-        trajectory = read_trajectory(args.poses)
-        match = associate(trajectory, args.rgb)
-    except FileNotFoundError:
-        raise UserError(f"{args.poses}: trajectory file not found") from None
-    except (OSError, ValueError) as exc:
-        raise UserError(f"{args.poses}: {exc}") from None
-    record = {"source": "given", "file": args.poses, "format": trajectory.fmt, "association": match.rule,
-              "trajectory_indices": match.indices.tolist(), "max_time_difference_s": match.max_time_difference_s,
-              "note": "re-expressed so that the first frame's camera frame is the world frame"}
-    return relative_to_first(match.poses), record
-
-
-def _reconstruct(args):
-    """The reconstruction of the capture arguments: one RGB-D frame, several fused, or a stereo frame."""
-    from rgbd2scene.reconstruct.pipeline import reconstruct
-
-    mode = _check_inputs(args)
-    options = _mesh_options(args, mode)
-    if mode == "stereo":
-        from rgbd2scene.capture.stereo import StereoOptions, load_stereo_capture
-
-        stereo = StereoOptions(matcher=args.matcher)
-        if args.depth_range:
-            stereo.min_depth, stereo.max_depth = args.depth_range
-        try:
-            stereo.check()
-        except ValueError as exc:
-            raise UserError(f"--depth-range/--matcher: {exc}") from None
-        return reconstruct(load_stereo_capture(args.left, args.right, args.stereo_calib, stereo), options)
-    captures = _load_captures(args)
-    if mode == "rgbd":
-        return reconstruct(captures[0], options)
-    from rgbd2scene.reconstruct.fusion import FusionOptions, reconstruct_fused
-
-    if args.voxel_size is not None and not args.voxel_size > 0:
-        raise UserError(f"--voxel-size: must be a positive number of metres, got {args.voxel_size}")
-    poses, record = _given_poses(args) if args.poses else (None, None)
-    fusion = FusionOptions(voxel_size=args.voxel_size)
-    if args.min_frames is not None:
-        if args.min_frames < 1:
-            raise UserError(f"--min-frames: must be at least 1, got {args.min_frames}")
-        fusion.min_frames = args.min_frames
-    try:
-        return reconstruct_fused(captures, poses, options, fusion, poses_record=record)
-    except ValueError as exc:
-        raise UserError(f"fusion: {exc}") from None
+    return reconstruct_inputs(loaded, from_args(MeshOptions, args))
 
 
 def _report(recon) -> str:
@@ -196,39 +77,14 @@ def _report(recon) -> str:
     return text
 
 
-def _mesh_options(args, mode: str):
-    """MeshOptions from the flags; fill and smoothing default to none when fusing frames (the other frames
-    fill each frame's holes, and TSDF fusion averages the noise)."""
-    from dataclasses import replace
-
-    from rgbd2scene.options import from_args
-    from rgbd2scene.reconstruct.pipeline import MeshOptions
-
-    options = from_args(MeshOptions, args)
-    fusion = mode == "fusion"
-    return replace(options, fill=options.fill or ("none" if fusion else "auto"),
-                   smooth=options.smooth or ("none" if fusion else "ray"), sensor=_sensor_name(args, mode))
-
-
-def _sensor_name(args, mode: str) -> str:
-    """--sensor, else the preset's sensor (the default preset's with --camera); none for a stereo frame (its
-    depth comes from matching two images, not from a projector)."""
-    from rgbd2scene.capture.camera import PRESET_SENSOR
-
-    if args.sensor:
-        return args.sensor
-    if mode == "stereo":
-        return "none"
-    return PRESET_SENSOR.get((args.preset or "primesense").lower(), "kinect_v1")
-
-
 def cmd_mesh(args) -> int:
     from rgbd2scene.files.atomic import ensure_output_dir
     from rgbd2scene.stages.mesh import write_mesh_folder
 
     t0 = time.perf_counter()
+    loaded = _load(args)
     ensure_output_dir(args.output)
-    recon = _reconstruct(args)
+    recon = _reconstruct(args, loaded)
     write_mesh_folder(args.output, recon)
     print(f"{_report(recon)}, total {time.perf_counter() - t0:.2f}s")
     print(f"{len(recon.mesh.vertices)} vertices, {len(recon.mesh.triangles)} triangles -> {args.output}/mesh.ply")
@@ -247,22 +103,24 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
 def cmd_scene(args) -> int:
     from rgbd2scene.files.atomic import ensure_output_dir
     from rgbd2scene.options import from_args
+    from rgbd2scene.stages.capture import CaptureOptions
     from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
     from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder, scene_config
 
     t0 = time.perf_counter()
     options = from_args(SceneOptions, args)
-    config = scene_config(options)  # a bad configuration fails before the reconstruction
-    out = ensure_output_dir(args.output)
-    if args.mesh_dir:
-        mesh, record = load_mesh_folder(args.mesh_dir, out)
-    elif _has_capture_input(args):
-        recon = _reconstruct(args)
-        write_mesh_folder(out, recon, finalize=False)
-        mesh, record = recon.mesh, scene_record(recon)
-    else:
+    config = scene_config(options)  # a bad configuration or capture fails before anything is written
+    if not args.mesh_dir and not from_args(CaptureOptions, args).given():
         raise UserError("scene: give a capture (--rgb and --depth, or --left, --right and --stereo-calib) or "
                         "--mesh-dir (a mesh folder)")
+    loaded = None if args.mesh_dir else _load(args)
+    out = ensure_output_dir(args.output)
+    if loaded is None:
+        mesh, record = load_mesh_folder(args.mesh_dir, out)
+    else:
+        recon = _reconstruct(args, loaded)
+        write_mesh_folder(out, recon, finalize=False)
+        mesh, record = recon.mesh, scene_record(recon)
     record = build_scene_folder(out, mesh, record, options, config=config)
     cov = record["coverage"]
     print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
@@ -544,13 +402,16 @@ COMMANDS = {
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The CLI; with ``command``, only that command's arguments are declared (the others' imports take a
     few tenths of a second at every start)."""
+    from rgbd2scene.options import flags_of
+
     parser = _Parser(prog="rgbd2scene", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name, (help_text, add_args, run) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text)
         if command in (None, name):
             add_args(p)
-        p.set_defaults(func=run)
+        # a library's OptionError names a field; the command spells it as its flag
+        p.set_defaults(func=run, option_flags=flags_of(p))
     return parser
 
 
@@ -562,6 +423,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except UserError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OptionError as exc:
+        print(f"error: {exc.render(lambda name: args.option_flags.get(name, name))}", file=sys.stderr)
         return 2
     except RenderError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -6,43 +6,66 @@ handed to Blender and the records in ``scene.json`` / ``dataset.json`` (:func:`t
 check (:func:`resume_diff` compares the fields marked ``resume=True``).
 
 A field's CLI flag is ``--name-with-dashes`` unless ``flag=`` says otherwise; a boolean that defaults to
-True gets a ``--no-...`` flag. A field marked ``file=True`` holds a file path, which a configuration file gives
-relative to itself (:func:`from_mapping`'s ``base_dir``). Problems found by ``validate()`` are
-:class:`OptionError`\\ s naming the field, which the CLI reports with the flag and a batch build with the
-configuration key.
+True gets a ``--no-...`` flag. A field marked ``file=True`` holds a file path (or a list of them), which a
+configuration file gives relative to itself (:func:`from_mapping`'s ``base_dir``). A field with ``nargs`` takes
+several values: ``nargs=2`` on a ``tuple[float, float]`` field is ``--depth-range MIN MAX`` on the command line
+and ``depth_range: [0.02, 0.5]`` in a configuration file; ``nargs="+"`` on a ``list[str]`` field takes one or
+more. ``group`` names the ``--help`` section of a flag.
+
+Problems found by the library are :class:`OptionError`\\ s naming the field, which the CLI reports with the
+flag and a batch build with the configuration key (:meth:`OptionError.render`).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import typing
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+#: ``{field}`` in an :class:`OptionError` message: a field the sentence names, spelled by each front end.
+_FIELD = re.compile(r"\{([a-z][a-z0-9_]*)\}")
+
 
 class OptionError(ValueError):
-    """An invalid option value; ``name`` is the field, so each front end can name its own spelling."""
+    """An invalid option value; ``name`` is the field, so each front end can name its own spelling.
+
+    A message that names fields itself (``"give {rgb} and {depth}"``) is a whole sentence: :meth:`render`
+    spells the fields in it instead of prefixing ``name``.
+    """
 
     def __init__(self, name: str, message: str):
         super().__init__(message)
         self.name = name
         self.message = message
 
+    def render(self, spell: Callable[[str], str] = str, where: str = "") -> str:
+        """The message for one front end: ``spell`` turns a field name into its spelling (``--depth-range``,
+        ``depth_range``); ``where`` (a configuration key path such as ``captures[2]``) goes before it."""
+        if _FIELD.search(self.message):
+            text = _FIELD.sub(lambda m: spell(m[1]), self.message)
+            return f"{where}: {text}" if where else text
+        return f"{where}.{spell(self.name)}: {self.message}" if where else f"{spell(self.name)}: {self.message}"
+
 
 def option(default: Any = None, help: str = "", *, flag: str | None = None, choices=None,
            parse: Callable[[str], Any] | None = None, resume: bool = False, cli: bool = True,
-           metavar: str | None = None, file: bool = False) -> Any:
+           metavar: str | tuple[str, ...] | None = None, file: bool = False, nargs: int | str | None = None,
+           group: str | None = None) -> Any:
     """A dataclass field with what the CLI and the records need to know about it.
 
     ``parse`` turns the command-line (or configuration) text into the value (e.g. ``"512x256"`` -> (512, 256));
     ``resume`` marks settings that must match for a re-run to continue into the same output folder;
     ``cli=False`` keeps a field out of the command line (set by the program, or by configuration files);
-    ``file=True`` marks a file path (resolved against a configuration file's folder).
+    ``file=True`` marks a file path (resolved against a configuration file's folder);
+    ``nargs`` (an int, or ``"+"``) makes a flag take several values (the field is a tuple or list; ``metavar``
+    may name each, e.g. ``("MIN", "MAX")``); ``group`` is the flag's section in ``--help``.
     """
     meta = {"help": help, "flag": flag, "choices": choices, "parse": parse, "resume": resume, "cli": cli,
-            "metavar": metavar, "file": file}
+            "metavar": metavar, "file": file, "nargs": nargs, "group": group}
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -66,9 +89,26 @@ def _base_type(cls, f) -> type | None:
     return base if isinstance(base, type) else None
 
 
+def _element_type(cls, f) -> type | None:
+    """The type of each value of a several-value field (``tuple[float, float]`` -> float)."""
+    hint = typing.get_type_hints(cls).get(f.name)
+    for arg in [a for a in typing.get_args(hint) if a is not type(None)] or [hint]:
+        inner = [a for a in typing.get_args(arg) if a is not Ellipsis]
+        if typing.get_origin(arg) in (list, tuple) and inner and isinstance(inner[0], type):
+            return inner[0]
+    return None
+
+
+def _is_tuple(cls, f) -> bool:
+    hint = typing.get_type_hints(cls).get(f.name)
+    return any(typing.get_origin(a) is tuple for a in (hint, *typing.get_args(hint)))
+
+
 def _describe_default(value) -> str:
     if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
         return f"{value[0]}x{value[1]}"
+    if isinstance(value, (tuple, list)):
+        return " ".join(map(str, value))
     return str(value)
 
 
@@ -85,31 +125,51 @@ def _argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
 
 
 def add_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls, exclude=()) -> None:
-    """Add one flag per CLI field of the options dataclass ``cls`` (defaults and help from the fields)."""
+    """Add one flag per CLI field of the options dataclass ``cls`` (defaults and help from the fields); fields
+    with a ``group`` go to that section of ``--help`` (created on ``parser`` when it is a parser)."""
+    sections: dict[str, Any] = {}
     for f in dataclasses.fields(cls):
         meta = f.metadata
         if not meta.get("cli", True) or f.name in exclude:
             continue
+        target = parser
+        if meta.get("group") and isinstance(parser, argparse.ArgumentParser):
+            target = sections.get(meta["group"]) or sections.setdefault(meta["group"],
+                                                                         parser.add_argument_group(meta["group"]))
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
         help_text = meta.get("help", "")
         flag = flag_of(cls, f.name)
         if isinstance(default, bool):
             action = "store_false" if default else "store_true"
-            parser.add_argument(flag, dest=f.name, action=action, default=default, help=help_text)
+            target.add_argument(flag, dest=f.name, action=action, default=default, help=help_text)
             continue
-        kind = _argparse_type(meta["parse"]) if meta.get("parse") else _base_type(cls, f)
+        nargs = meta.get("nargs")
+        if meta.get("parse"):
+            kind = _argparse_type(meta["parse"])
+        else:
+            kind = _element_type(cls, f) if nargs else _base_type(cls, f)
         if kind in (list, tuple, dict):
             kind = None
         if default is not None and help_text and "default" not in help_text:
             help_text = f"{help_text} (default {_describe_default(default)})"
         metavar = meta.get("metavar") or (None if meta.get("choices") else flag.lstrip("-").upper().replace("-", "_"))
-        parser.add_argument(flag, dest=f.name, type=kind, default=default, choices=meta.get("choices"),
-                            help=help_text, metavar=metavar)
+        target.add_argument(flag, dest=f.name, type=kind, default=default, choices=meta.get("choices"),
+                            help=help_text, metavar=metavar, nargs=nargs)
+
+
+def flags_of(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """Field (``dest``) -> its long flag, for every option of ``parser`` (to spell :class:`OptionError`\\ s)."""
+    return {a.dest: max(a.option_strings, key=len) for a in parser._actions if a.option_strings}
 
 
 def from_args(cls, args: argparse.Namespace, **overrides):
-    """The options dataclass from parsed arguments (fields without a flag keep their defaults)."""
-    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if hasattr(args, f.name)}
+    """The options dataclass from parsed arguments (fields without a flag keep their defaults; several values
+    of a tuple field become a tuple)."""
+    values = {}
+    for f in dataclasses.fields(cls):
+        if hasattr(args, f.name):
+            value = getattr(args, f.name)
+            values[f.name] = tuple(value) if isinstance(value, list) and _is_tuple(cls, f) else value
     values.update(overrides)
     return cls(**values)
 
@@ -149,9 +209,16 @@ def from_mapping(cls, values: Mapping[str, Any], where: str = "", base_dir: str 
         if meta.get("choices") and value not in meta["choices"]:
             raise OptionError(prefix + key, f"choose one of {', '.join(map(str, meta['choices']))}, got {value!r}")
         if meta.get("file") and value is not None and base_dir is not None:
-            value = str(Path(base_dir) / Path(value).expanduser())
+            value = _relative_to(base_dir, value)
         kwargs[key] = value
     return cls(**kwargs)
+
+
+def _relative_to(base_dir: str | Path, value):
+    """A path (or list of paths) of a configuration file, relative to its folder."""
+    if isinstance(value, (list, tuple)):
+        return type(value)(_relative_to(base_dir, v) for v in value)
+    return str(Path(base_dir) / Path(value).expanduser())
 
 
 def to_record(options) -> dict:

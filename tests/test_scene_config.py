@@ -294,7 +294,7 @@ def mesh_folder(tmp_path_factory) -> Path:
      ".toml", "objects[0]: 'box' never enters the view"),
     ("tracked_frames:\n  - {name: tip2, attached_to: forceps/jaw, position: [0, 0, 0]}\n", ".yaml",
      "tracked_frames[0].attached_to: unknown object 'forceps'"),
-    ("objects: [kind: mesh\n", ".yaml", "(file): not readable YAML"),
+    ("objects: [kind: mesh\n", ".yaml", "not valid YAML (line 2"),
 ])
 def test_bad_configurations_exit_2_with_one_line(mesh_folder, tmp_path, text, suffix, key):
     config = mesh_folder / f"bad{suffix}"

@@ -10,6 +10,14 @@ captures:
     split: train                   # train | val | test (default train)
     mesh: {fill: inpaint}          # MeshOptions keys for this capture
     scene: {baseline: 0.004}       # SceneOptions keys for this capture
+  - name: room                     # fused frames: lists (a glob in a list: its matches, sorted), one capture
+    rgb: [room/color/*.jpg]
+    depth: [room/depth/*.png]
+    poses: room/trajectory.log     # optional (estimated by odometry without it); voxel_size, min_frames
+    camera: room/camera.json
+  - left: scope/left.png           # a stereo endoscope frame (globs paired by their wildcards, as rgb/depth)
+    right: scope/right.png
+    stereo_calib: scope/calib      # JSON file or Hamlyn-style folder; matcher, depth_range: [0.02, 0.2]
   - scene: old/scene               # an existing scene folder (its mesh is reused), or
     split: test                    # scene: {folder: old/scene, baseline: 0.004}
 scene: {material: wet_tissue}      # SceneOptions for every capture (a capture's own keys win)
@@ -22,9 +30,14 @@ variations:                        # drawn per sequence, over any SceneOptions f
   deform: {choice: [none, breathing]}       # explicit forms: {uniform: [lo, hi]}, {choice: [...]}
 ```
 
-The structure is checked with pydantic; the ``mesh``, ``scene`` and ``render`` mappings and the variations go
-through the options dataclasses (:func:`rgbd2scene.options.from_mapping`), so options other stages add are
-configuration keys at once. Every problem is one :class:`UserError` line ``CONFIG: key.path: problem``.
+The file is read and its structure checked by the configuration stack the scene configuration shares
+(:mod:`rgbd2scene.config_files`: YAML or TOML, pydantic models refusing unknown keys). A capture's input keys
+are the fields of the capture stage's :class:`~rgbd2scene.stages.capture.CaptureOptions` (the CLI's capture
+flags), checked by the stage itself (:func:`~rgbd2scene.stages.capture.check_inputs`: the same errors as on
+the command line, the trajectory and the stereo calibration read at once); the ``mesh``, ``scene`` and
+``render`` mappings and the variations go through the options dataclasses
+(:func:`rgbd2scene.options.from_mapping`), so options other stages add are configuration keys at once.
+Every problem is one :class:`UserError` line ``CONFIG: key.path: problem``.
 """
 
 from __future__ import annotations
@@ -33,25 +46,23 @@ import glob
 import json
 import os
 import re
-import tomllib
 import typing
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, ValidationError, create_model, field_validator, model_validator
 
-from rgbd2scene.capture.camera import PRESETS
-from rgbd2scene.capture.readers import DEPTH_FORMATS
+from rgbd2scene.config_files import ConfigError, Strict, read_config_file, validation_error
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import OptionError, from_mapping
 from rgbd2scene.reconstruct.pipeline import MeshOptions
 from rgbd2scene.scene import folder as scene_files
+from rgbd2scene.stages.capture import CaptureOptions, check_inputs
 from rgbd2scene.stages.render import RenderOptions
 from rgbd2scene.stages.scene import SceneOptions
 
 SPLITS = ("train", "val", "test")
-SUFFIXES = {".yaml": "YAML", ".yml": "YAML", ".toml": "TOML"}
 #: SceneOptions fields each sequence gets from the plan, never from the configuration's ``scene`` or variations.
 PLANNED_SCENE_KEYS = {"path": "sequences.paths", "frames": "sequences.frames",
                       "seed": "the sequence seed (from seed and the sequence name)"}
@@ -66,20 +77,20 @@ CONFIG_FORMAT = "rgbd2scene-batch-config"
 
 # --- the file's structure (pydantic) ----------------------------------------------------------------------
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+#: A capture entry's input keys: the capture stage's options (their values are checked by the stage).
+CAPTURE_KEYS = tuple(f.name for f in fields(CaptureOptions))
+#: Input keys that name files, and those of them that may be globs giving one capture per match.
+_FILE_KEYS = tuple(f.name for f in fields(CaptureOptions) if f.metadata.get("file"))
+_PER_MATCH = ("rgb", "left")
+#: Input keys that take a list (the frames of a fused sequence).
+_LIST_KEYS = ("rgb", "depth")
 
 
-class CaptureEntry(_Strict):
-    """One ``captures`` entry as written (paths not yet resolved, globs not yet expanded)."""
+class _CaptureBase(Strict):
+    """One ``captures`` entry as written (paths not yet resolved, globs not yet expanded): its name, split,
+    scene and mesh settings, and (:data:`CaptureEntry`) the capture stage's input keys."""
 
     name: str | None = None
-    rgb: str | None = None
-    depth: str | None = None
-    camera: str | None = None
-    preset: str | None = None
-    depth_scale: float | None = Field(None, gt=0)
-    depth_format: Literal[DEPTH_FORMATS] = "auto"  # type: ignore[valid-type]
     scene: Any = None
     mesh: dict[str, Any] = Field(default_factory=dict)
     split: Literal[SPLITS] = "train"  # type: ignore[valid-type]
@@ -89,13 +100,6 @@ class CaptureEntry(_Strict):
     def _name(cls, value):
         if value is not None and not NAME.match(value):
             raise ValueError(f"{value!r}: use letters, digits, '_', '-' and '.' (it names folders)")
-        return value
-
-    @field_validator("preset")
-    @classmethod
-    def _preset(cls, value):
-        if value is not None and value.lower() not in PRESETS:
-            raise ValueError(f"unknown camera preset {value!r}; choose one of {', '.join(PRESETS)}")
         return value
 
     @field_validator("scene")
@@ -108,14 +112,14 @@ class CaptureEntry(_Strict):
     @model_validator(mode="after")
     def _source(self):
         folder = self.scene_folder
-        if folder is None and not (self.rgb and self.depth):
-            raise ValueError("give rgb and depth (a capture), or scene: a scene folder")
-        if folder is not None and (self.rgb or self.depth or self.camera or self.preset):
-            raise ValueError("give either rgb/depth/camera or a scene folder, not both")
+        given = [key for key in CAPTURE_KEYS if getattr(self, key) is not None]
+        if folder is None and not given:
+            raise ValueError("give rgb and depth (an RGB-D capture; lists of them to fuse frames), left, right and "
+                             "stereo_calib (a stereo frame), or scene: a scene folder")
+        if folder is not None and given:
+            raise ValueError(f"give either a capture ({', '.join(given)}) or a scene folder, not both")
         if folder is not None and self.mesh:
-            raise ValueError("mesh options need rgb/depth: a scene folder's mesh is already built")
-        if self.camera and self.preset:
-            raise ValueError("give camera or preset, not both")
+            raise ValueError("mesh options need a capture: a scene folder's mesh is already built")
         return self
 
     @property
@@ -130,14 +134,22 @@ class CaptureEntry(_Strict):
     def scene_options(self) -> dict:
         return {k: v for k, v in self.scene.items() if k != "folder"} if isinstance(self.scene, dict) else {}
 
+    @property
+    def inputs(self) -> dict:
+        """The input keys the entry sets, as written."""
+        return {key: getattr(self, key) for key in CAPTURE_KEYS if getattr(self, key) is not None}
 
-class SequencesEntry(_Strict):
+
+CaptureEntry = create_model("CaptureEntry", __base__=_CaptureBase, **{key: (Any, None) for key in CAPTURE_KEYS})
+
+
+class SequencesEntry(Strict):
     per_capture: int = Field(1, ge=1)
     frames: int = Field(30, ge=1)
     paths: list[str] = Field(default_factory=lambda: ["scan"], min_length=1)
 
 
-class ConfigFile(_Strict):
+class ConfigFile(Strict):
     seed: int = Field(0, ge=0)
     captures: list[CaptureEntry] = Field(min_length=1)
     sequences: SequencesEntry = Field(default_factory=SequencesEntry)
@@ -151,7 +163,8 @@ class ConfigFile(_Strict):
 
 @dataclass(frozen=True)
 class Capture:
-    """One capture after glob expansion: absolute paths, its split, its mesh and scene settings.
+    """One capture after glob expansion: its inputs (the capture stage's options, absolute paths), split, mesh
+    and scene settings; or an existing scene folder (``scene_dir``).
 
     ``where`` is its key path (``captures[1]``) for messages; ``scene`` and ``mesh_keys`` hold only the keys the
     configuration sets for it (the top-level ``scene``/``mesh`` merged with its own), already parsed, and
@@ -161,12 +174,7 @@ class Capture:
     name: str
     split: str
     where: str
-    rgb: str | None = None
-    depth: str | None = None
-    camera: str | None = None
-    preset: str | None = None
-    depth_scale: float | None = None
-    depth_format: str = "auto"
+    inputs: CaptureOptions | None = None
     scene_dir: str | None = None
     mesh: MeshOptions = field(default_factory=MeshOptions)
     mesh_keys: dict = field(default_factory=dict)
@@ -174,19 +182,50 @@ class Capture:
     scene_where: dict = field(default_factory=dict)
 
     @property
+    def rgb(self) -> str | list[str] | None:
+        """The colour image (a list of them for fused frames)."""
+        return _single(self.inputs.rgb) if self.inputs else None
+
+    @property
+    def depth(self) -> str | list[str] | None:
+        return _single(self.inputs.depth) if self.inputs else None
+
+    @property
+    def camera(self) -> str | None:
+        return self.inputs.camera if self.inputs else None
+
+    @property
     def source(self) -> tuple:
         """What identifies the captured scene (two captures with one source must share a split)."""
-        return (self.scene_dir,) if self.scene_dir else (self.rgb, self.depth)
+        if self.scene_dir:
+            return (self.scene_dir,)
+        i = self.inputs
+        return (*(i.rgb or ()), *(i.depth or ()), i.left, i.right)
 
     def record(self) -> dict:
         out = {"name": self.name, "split": self.split}
         if self.scene_dir:
             out["scene_dir"] = self.scene_dir
         else:
-            out.update(rgb=self.rgb, depth=self.depth, camera=self.camera, preset=self.preset,
-                       depth_scale=self.depth_scale, depth_format=self.depth_format, mesh=self.mesh_keys)
+            out.update(_inputs_record(self.inputs), mesh=self.mesh_keys)
         out["scene"] = self.scene
         return out
+
+
+def _single(paths: list[str] | None) -> str | list[str] | None:
+    return paths[0] if paths and len(paths) == 1 else paths
+
+
+def _inputs_record(inputs: CaptureOptions) -> dict:
+    """The input keys of a capture for ROOT/config.json: an RGB-D frame's always (as before fused and stereo
+    captures were accepted), the others' where they differ from the defaults."""
+    out = {}
+    always = ("rgb", "depth", "camera", "preset", "depth_scale", "depth_format") if inputs.rgb else ()
+    for f in fields(CaptureOptions):
+        value = getattr(inputs, f.name)
+        if f.name in always or value != f.default:
+            out[f.name] = _single(value) if f.name in ("rgb", "depth") else value
+    return out
 
 
 @dataclass(frozen=True)
@@ -237,62 +276,12 @@ class BatchConfig:
 
 # --- loading ---------------------------------------------------------------------------------------------
 
-def _key_path(loc: tuple) -> str:
-    out = ""
-    for part in loc:
-        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
-    return out
-
-
-def _pydantic_error(path: Path, exc: ValidationError) -> UserError:
-    err = exc.errors()[0]
-    loc = tuple(err["loc"])
-    if err["type"] == "extra_forbidden":
-        model = ConfigFile
-        for part in loc[:-1]:  # the model whose keys are listed
-            if isinstance(part, str):
-                hint = model.model_fields[part].annotation
-                args = typing.get_args(hint)
-                model = next((a for a in (hint, *args) if isinstance(a, type) and issubclass(a, BaseModel)), model)
-        message = f"unknown key (known: {', '.join(model.model_fields)})"
-    elif err["type"] == "missing":
-        message = "required"
-    else:
-        message = err["msg"].removeprefix("Value error, ")
-        if "input" in err and err["type"] not in ("value_error",) and not isinstance(err["input"], dict):
-            message += f", got {err['input']!r}"
-    more = f" (and {exc.error_count() - 1} more problems)" if exc.error_count() > 1 else ""
-    return UserError(f"{path}: {_key_path(loc) or 'top level'}: {message}{more}")
-
-
 def read_mapping(path: Path) -> dict:
-    """The configuration file's contents (YAML or TOML, by suffix) as a mapping."""
-    kind = SUFFIXES.get(path.suffix.lower())
-    if kind is None:
-        raise UserError(f"{path}: unknown configuration format (use .yaml, .yml or .toml)")
+    """The configuration file's contents (YAML or TOML, by suffix) as a mapping; :class:`UserError` naming the file."""
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise UserError(f"{path}: configuration file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise UserError(f"{path}: not readable ({exc})") from None
-    if kind == "TOML":
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise UserError(f"{path}: not valid TOML ({exc})") from None
-    else:
-        import yaml
-
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-            raise UserError(f"{path}: not valid YAML ({where}{getattr(exc, 'problem', None) or exc})") from None
-    if not isinstance(data, dict):
-        raise UserError(f"{path}: the configuration must be a mapping of keys (seed, captures, ...)")
-    return data
+        return read_config_file(path)
+    except ConfigError as exc:
+        raise UserError(f"{path}: {exc}") from None
 
 
 def load_config(path: str | Path) -> BatchConfig:
@@ -303,7 +292,7 @@ def load_config(path: str | Path) -> BatchConfig:
     try:
         raw = ConfigFile.model_validate(data)
     except ValidationError as exc:
-        raise _pydantic_error(path, exc) from None
+        raise UserError(f"{path}: {validation_error(exc, ConfigFile)}") from None
     try:
         return _resolve(path, raw)
     except OptionError as exc:
@@ -344,24 +333,20 @@ def _resolve(path: Path, raw: ConfigFile) -> BatchConfig:
         common = dict(split=entry.split, where=where, scene={**scene_defaults, **own_scene}, scene_where=scene_where)
         check_scene(common["scene"], scene_where)
         if entry.scene_folder is not None:
-            for name, folder in _expand(entry.scene_folder, base, f"{where}.scene", want_dir=True).items():
+            for name, folder in _expand(entry.scene_folder, base, f"{where}.scene", want="dir").items():
                 _check_scene_folder(folder, f"{where}.scene")
                 captures.append(Capture(_capture_name(entry.name, name, folder.name), scene_dir=str(folder), **common))
             continue
-        rgbs = _expand(entry.rgb, base, f"{where}.rgb")
-        depths = _expand(entry.depth, base, f"{where}.depth")
-        cameras = _expand(entry.camera, base, f"{where}.camera") if entry.camera else {}
-        _pair(rgbs, depths, f"{where}.depth")
-        if len(cameras) > 1 or (cameras and () not in cameras):
-            _pair(rgbs, cameras, f"{where}.camera")
         mesh_keys = {**mesh_defaults, **own_mesh}
-        for key, rgb in rgbs.items():
-            camera = cameras.get(key, cameras.get(()))
-            captures.append(Capture(_capture_name(entry.name, key, rgb.stem), rgb=str(rgb), depth=str(depths[key]),
-                                    camera=str(camera) if camera else None, preset=entry.preset,
-                                    depth_scale=entry.depth_scale, depth_format=entry.depth_format,
-                                    mesh=MeshOptions(**mesh_keys), mesh_keys=mesh_keys,
-                                    **common))
+        for key, values in _expand_inputs(entry.inputs, base, where).items():
+            try:
+                inputs = from_mapping(CaptureOptions, values)
+                check_inputs(inputs)
+            except OptionError as exc:  # the stage names the field: spelled as the entry's key
+                raise UserError(f"{path}: {exc.render(where=where)}") from None
+            first = Path(inputs.left or inputs.rgb[0])
+            captures.append(Capture(_capture_name(entry.name, key, first.stem), inputs=inputs,
+                                    mesh=MeshOptions(**mesh_keys), mesh_keys=mesh_keys, **common))
     _check_unique(captures)
     for name in variations:
         if name in PLANNED_SCENE_KEYS:
@@ -437,21 +422,23 @@ def _glob_regex(pattern: str) -> re.Pattern:
     return re.compile(out + r"\Z")
 
 
-def _expand(pattern: str, base: Path, where: str, want_dir: bool = False) -> dict[tuple, Path]:
-    """Files (or folders) a path or glob names, keyed by what its wildcards matched (``()`` for a plain path)."""
+def _expand(pattern: str, base: Path, where: str, want: str = "file") -> dict[tuple, Path]:
+    """Files (``want="file"``), folders (``"dir"``) or either (``"any"``) that a path or glob names, keyed by what
+    its wildcards matched (``()`` for a plain path)."""
     relative = Path(pattern).expanduser()
     prefix = "" if relative.is_absolute() else str(base) + os.sep
-    what = "folder" if want_dir else "file"
+    what = {"file": "file", "dir": "folder", "any": "file or folder"}[want]
+    wanted = {"file": Path.is_file, "dir": Path.is_dir, "any": Path.exists}[want]
     if not glob.has_magic(pattern):
         path = Path(prefix + str(relative))
-        if not (path.is_dir() if want_dir else path.is_file()):
+        if not wanted(path):
             raise OptionError(where, f"{path}: {what} not found")
         return {(): path}
     regex = _glob_regex(str(relative))
     found = {}
     for match in sorted(glob.glob(glob.escape(prefix) + str(relative), recursive=True)):
         hit = Path(match)
-        if hit.is_dir() if want_dir else hit.is_file():
+        if wanted(hit):
             found[regex.match(match[len(prefix):]).groups()] = hit
     if not found:
         raise OptionError(where, f"no {what} matches {prefix}{relative}")
@@ -467,6 +454,41 @@ def _pair(rgbs: dict, others: dict, where: str) -> None:
     extra = sorted(set(others) - set(rgbs))
     if extra:
         raise OptionError(where, f"{others[extra[0]]} has no rgb file (wildcards matched {'/'.join(extra[0])})")
+
+
+def _expand_inputs(inputs: dict, base: Path, where: str) -> dict[tuple, dict]:
+    """The input keys of one entry with paths made absolute and globs expanded: one mapping per capture, keyed
+    by what the wildcards of ``rgb`` (or ``left``) matched. A list (fused frames) is one capture: each item's
+    matches, sorted, in turn. The other file keys pair with those matches by their own wildcards, or are one
+    file for all."""
+    per_match = next((k for k in _PER_MATCH if isinstance(inputs.get(k), str)), None)
+    lead = _expand(inputs[per_match], base, f"{where}.{per_match}") if per_match else {(): None}
+    out: dict[tuple, dict] = {key: dict(inputs) for key in lead}
+    for name in _FILE_KEYS:
+        value = inputs.get(name)
+        if value is None:
+            continue
+        if isinstance(value, list) and name in _LIST_KEYS:
+            if not all(isinstance(v, str) for v in value):
+                raise OptionError(f"{where}.{name}", f"give a file, or a list of files, got {value!r}")
+            files = [str(p) for i, v in enumerate(value)
+                     for p in _expand(v, base, f"{where}.{name}[{i}]", want=_want(name)).values()]
+            for values in out.values():
+                values[name] = files
+            continue
+        if not isinstance(value, str):
+            raise OptionError(f"{where}.{name}", f"give a file path, got {value!r}")
+        found = lead if name == per_match else _expand(value, base, f"{where}.{name}", want=_want(name))
+        if len(found) > 1 or () not in found:
+            _pair(lead, found, f"{where}.{name}")
+        for key, values in out.items():
+            path = str(found.get(key, found.get(())))
+            values[name] = [path] if name in ("rgb", "depth") else path
+    return out
+
+
+def _want(key: str) -> str:
+    return "any" if key == "stereo_calib" else "file"  # a calibration is a JSON file or a Hamlyn-style folder
 
 
 def _capture_name(name: str | None, key: tuple, fallback: str) -> str:

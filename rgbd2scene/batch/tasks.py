@@ -51,14 +51,17 @@ def build_mesh(capture, out_dir: str) -> Outcome:
     """Reconstruct ``capture`` (a :class:`rgbd2scene.batch.config.Capture`) into the mesh folder ``out_dir``."""
 
     def work() -> float:
-        from rgbd2scene.capture.camera import camera_for
-        from rgbd2scene.capture.readers import load_capture
-        from rgbd2scene.reconstruct.pipeline import reconstruct
+        from rgbd2scene.options import OptionError
+        from rgbd2scene.stages.capture import load_inputs, reconstruct_inputs
         from rgbd2scene.stages.mesh import write_mesh_folder
 
-        intr, scale = camera_for(capture.camera, capture.preset, capture.depth_scale)
-        loaded = load_capture(capture.rgb, capture.depth, intr, depth_scale=scale, depth_format=capture.depth_format)
-        write_mesh_folder(out_dir, reconstruct(loaded, capture.mesh))
+        try:
+            recon = reconstruct_inputs(load_inputs(capture.inputs), capture.mesh)
+        except OptionError as exc:  # named by the configuration's key
+            raise UserError(exc.render(where=capture.where)) from None
+        except UserError as exc:  # names the file; the entry too
+            raise UserError(f"{capture.where}: {exc}") from None
+        write_mesh_folder(out_dir, recon)
         return 0.0
 
     return _run(work)

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from rgbd2scene.errors import UserError
+from rgbd2scene.options import OptionError
 
 
 @dataclass(frozen=True)
@@ -93,10 +94,11 @@ PRESET_SENSOR = {name: "kinect_v1" for name in PRESETS}
 
 
 def preset(name: str) -> Intrinsics:
+    """The named camera (case-insensitive); :class:`OptionError` on ``preset`` for an unknown name."""
     try:
         return PRESETS[name.lower()]
     except KeyError:
-        raise UserError(f"--preset: unknown camera preset {name!r}; choose one of {', '.join(PRESETS)}") from None
+        raise OptionError("preset", f"unknown camera preset {name!r}; choose one of {', '.join(PRESETS)}") from None
 
 
 def load_camera_json(path: str | Path) -> tuple[Intrinsics, float | None]:

@@ -15,6 +15,7 @@ import numpy as np
 
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
+from rgbd2scene.options import OptionError
 
 DEPTH_FORMATS = ("auto", "png", "sun", "nyu", "exr", "npy")
 RGB_SUFFIXES = (".png", ".jpg", ".jpeg", ".ppm", ".bmp", ".tif", ".tiff")
@@ -30,7 +31,8 @@ class Capture:
     ``T_world_capture`` (4x4) is the pose of the camera the depth is measured in, in the world frame of
     the reconstruction (identity for a plain RGB-D capture; the rectifying rotation undone for a stereo
     frame). ``image_mask`` (bool (H, W), None = every pixel) marks the pixels that hold image data (a
-    rectified image has empty margins); nothing outside it is meshed.
+    rectified image has empty margins); nothing outside it is meshed. ``sensor`` is the depth sensor the
+    capture names (its camera preset's, ``rgbd2scene.capture.sensors``), None when nothing says.
     """
 
     rgb: np.ndarray
@@ -43,6 +45,7 @@ class Capture:
     info: dict = field(default_factory=dict)
     T_world_capture: np.ndarray = field(default_factory=lambda: np.eye(4))
     image_mask: np.ndarray | None = None
+    sensor: str | None = None
 
     @property
     def hole_mask(self) -> np.ndarray:
@@ -150,7 +153,7 @@ def read_depth(
     """
     path = Path(path)
     if depth_format not in DEPTH_FORMATS:
-        raise UserError(f"--depth-format: unknown format {depth_format!r}; choose one of {DEPTH_FORMATS}")
+        raise OptionError("depth_format", f"unknown format {depth_format!r}; choose one of {', '.join(DEPTH_FORMATS)}")
     if not path.is_file():
         raise UserError(f"{path}: depth file not found")
     suffix = path.suffix.lower()
@@ -191,7 +194,7 @@ def read_depth(
             raw, fmt = _sun_unrotate(raw), "sun"
     scale = 1000.0 if depth_scale is None else float(depth_scale)
     if not (scale > 0 and np.isfinite(scale)):
-        raise UserError(f"--depth-scale: must be a positive number, got {depth_scale}")
+        raise OptionError("depth_scale", f"must be a positive number, got {depth_scale}")
     depth = raw.astype(np.float32) / np.float32(scale)
     depth[raw == 0] = np.nan
     return depth, fmt, scale
@@ -273,8 +276,11 @@ def load_capture(
     intrinsics: Intrinsics,
     depth_scale: float | None = None,
     depth_format: str = "auto",
+    sensor: str | None = None,
 ) -> Capture:
-    """Read and validate one RGB-D capture; every problem is a one-line ``UserError``."""
+    """Read and validate one RGB-D capture; every problem with the files is a one-line ``UserError`` naming the
+    file (a bad ``depth_format`` or ``depth_scale`` value: an ``OptionError``). ``sensor``: the depth sensor the
+    capture names, if any."""
     rgb = read_rgb(rgb_path)
     depth, fmt, scale = read_depth(depth_path, depth_scale, depth_format)
     if rgb.shape[:2] != depth.shape:
@@ -289,5 +295,5 @@ def load_capture(
         )
     intrinsics.check("intrinsics")
     validate_depth(depth, str(depth_path), scale)
-    return Capture(rgb, depth, intrinsics, str(rgb_path), str(depth_path), fmt, scale)
+    return Capture(rgb, depth, intrinsics, str(rgb_path), str(depth_path), fmt, scale, sensor=sensor)
 

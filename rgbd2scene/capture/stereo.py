@@ -105,7 +105,10 @@ def _matrix(value, shape: tuple[int, ...], name: str) -> np.ndarray:
 
 
 def _distortion(value, name: str) -> np.ndarray:
-    d = np.asarray(value, dtype=np.float64).ravel()
+    try:
+        d = np.asarray(value, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} is not a list of numbers") from None
     if d.size not in DISTORTION_SIZES:
         sizes = ", ".join(map(str, DISTORTION_SIZES))
         raise ValueError(f"{name} has {d.size} coefficients; OpenCV's models take {sizes}")
@@ -141,14 +144,26 @@ def make_calibration(K_left, D_left, K_right, D_right, R, T, width: int, height:
                              width, height)
 
 
+#: Keys of a calibration JSON: the calibration itself, its image size, and what OpenCV's calibration and
+#: :meth:`StereoCalibration.to_dict` also report (kept in the file, not used).
+CALIBRATION_KEYS = ("K_left", "D_left", "K_right", "D_right", "R", "T")
+CALIBRATION_SIZE_KEYS = ("image_size", "width", "height")
+CALIBRATION_INFO_KEYS = ("baseline_m", "rms", "E", "F", "R1", "R2", "P1", "P2", "Q")
+
+
 def calibration_from_json(data: dict) -> StereoCalibration:
-    """Calibration from a JSON object (see the module docstring)."""
+    """Calibration from a JSON object (see the module docstring); other keys than ``CALIBRATION_KEYS``,
+    the size and ``CALIBRATION_INFO_KEYS`` are an error (a misspelt key would otherwise go unnoticed)."""
     if not isinstance(data, dict):
         raise ValueError("the calibration JSON must be an object")
-    missing = [k for k in ("K_left", "D_left", "K_right", "D_right", "R", "T") if k not in data]
+    missing = [k for k in CALIBRATION_KEYS if k not in data]
     if missing:
         raise ValueError(f"missing key(s) {', '.join(missing)} (need K_left, D_left, K_right, D_right, R, T "
                          "and image_size)")
+    unknown = sorted(set(data) - {*CALIBRATION_KEYS, *CALIBRATION_SIZE_KEYS, *CALIBRATION_INFO_KEYS})
+    if unknown:
+        raise ValueError(f"unknown key(s) {', '.join(unknown)} (known: {', '.join(CALIBRATION_KEYS)}, image_size "
+                         f"or width and height, and {', '.join(CALIBRATION_INFO_KEYS)})")
     if "image_size" in data:
         size = data["image_size"]
         if not isinstance(size, list | tuple) or len(size) != 2:

@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from rgbd2scene.capture.readers import Capture
+from rgbd2scene.capture.sensors import infer_sensor
 from rgbd2scene.conventions import invert_pose
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.reconstruct.fill import FillResult, fill_depth
@@ -258,9 +259,12 @@ def reconstruct_fused(captures: list[Capture], poses: np.ndarray | None = None, 
                          f"{', '.join(FUSION_SMOOTHING)} (ray smoothing needs a single viewpoint)")
     timings: dict = {}
     t0 = time.perf_counter()
+    sensor = infer_sensor(captures[0].depth, captures[0].depth_format, given=options.sensor, fused=True)
+    options = replace(options, sensor=sensor.sensor.name)
     fills = [None] * len(captures)
     if options.fill != "none":
-        fills = [fill_depth(c.depth, c.rgb, method=options.fill) for c in captures]
+        fills = [fill_depth(c.depth, c.rgb, method=options.fill, sensor=sensor.sensor, fx=c.intrinsics.fx)
+                 for c in captures]
     fused_input = [c if f is None else Capture(c.rgb, f.depth, c.intrinsics)
                    for c, f in zip(captures, fills, strict=True)]
     timings["fill_s"] = time.perf_counter() - t0
@@ -315,4 +319,4 @@ def reconstruct_fused(captures: list[Capture], poses: np.ndarray | None = None, 
     }
     stats = {"fill": filled.stats, "mesh": fuse_stats, "smooth": smooth_stats}
     return Reconstruction(first, options, filled, mesh, np.zeros(first.depth.shape, bool), stats, timings,
-                          sections={"fusion": record})
+                          sections={"fusion": record, "depth_sensor": sensor.to_dict()})

@@ -15,11 +15,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rgbd2scene.capture.readers import Capture
-from rgbd2scene.capture.sensors import get_sensor
+from rgbd2scene.capture.sensors import infer_sensor
 from rgbd2scene.capture.stereo import STEREO_SMOOTH_ITERATIONS
 from rgbd2scene.conventions import transform_points
 from rgbd2scene.errors import UserError
-from rgbd2scene.options import option, to_record
+from rgbd2scene.options import OptionError, option, to_record
 from rgbd2scene.reconstruct.fill import FILL_METHODS, FillResult, fill_depth
 from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
 from rgbd2scene.reconstruct.smooth import METHODS as SMOOTH_METHODS
@@ -36,8 +36,9 @@ class MeshOptions:
                               choices=FILL_METHODS)
     sensor: str | None = option(None, "depth sensor, for where occlusion shadows fall: kinect_v1 (structured "
                                 "light), kinect_v2, azure_kinect (time of flight: no shadows), realsense (active "
-                                "stereo), none (default: the preset's sensor; kinect_v1 for --camera; none for a "
-                                "stereo frame)")
+                                "stereo), none (default: inferred from the capture: the preset's sensor, kinect_v1 "
+                                "for a depth PNG within its 0.4-10 m range; none for a stereo frame, fused frames, "
+                                "EXR/npy depth or depth out of the sensor's range; scene.json says why)")
     max_relative_jump: float = option(0.03, "drop triangles whose relative depth jump exceeds this",
                                       flag="--max-jump")
     max_grazing_deg: float = option(85.0, "drop triangles seen more obliquely than this many degrees",
@@ -80,27 +81,26 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     """Fill holes, back-project into a grid mesh without curtains, and smooth along the viewing rays.
 
     The mesh is built in the capture camera's frame and then placed in the world frame by
-    ``capture.T_world_capture``; pixels outside ``capture.image_mask`` stay empty.
+    ``capture.T_world_capture``; pixels outside ``capture.image_mask`` stay empty. The depth sensor (for the
+    fill's shadow prior) is ``options.sensor``, else inferred from the capture
+    (:func:`rgbd2scene.capture.sensors.infer_sensor`); ``sections["depth_sensor"]`` records which and why.
     """
     options = options or MeshOptions()
     stereo = capture.depth_format == "stereo"
+    choice = infer_sensor(capture.depth, capture.depth_format, given=options.sensor, named=capture.sensor)
     options = replace(options, fill=options.fill or "auto", smooth=options.smooth or "ray",
-                      sensor=options.sensor or ("none" if stereo else "kinect_v1"),
+                      sensor=choice.sensor.name,
                       smooth_iterations=options.smooth_iterations if options.smooth_iterations is not None
                       else STEREO_SMOOTH_ITERATIONS if stereo else 10)
     timings = {}
     t0 = time.perf_counter()
-    try:
-        sensor = get_sensor(options.sensor)
-    except ValueError as exc:
-        raise UserError(f"--sensor: {exc}") from None
     # A rectified image's empty margins are no sensor border band: extrapolating into them would paint a
     # frame of made-up depth along the margins.
     try:
-        filled = fill_depth(capture.depth, capture.rgb, method=options.fill, sensor=sensor,
+        filled = fill_depth(capture.depth, capture.rgb, method=options.fill, sensor=choice.sensor,
                             fx=capture.intrinsics.fx, fill_border=capture.image_mask is None)
     except ValueError as exc:
-        raise UserError(f"--fill: {exc}") from None
+        raise OptionError("fill", str(exc)) from None
     if capture.image_mask is not None:
         filled = restrict_to_image(filled, capture.image_mask)
     timings["fill_s"] = time.perf_counter() - t0
@@ -125,4 +125,5 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     timings["compute_s"] = timings["fill_s"] + timings["texture_s"] + timings["mesh_s"] + timings["smooth_s"]
     stats = {"fill": filled.stats, "texture": {"highlights": options.highlights, **highlight_stats(highlights)},
              "mesh": mesh_stats, "smooth": smooth_stats}
-    return Reconstruction(capture, options, filled, mesh, highlights, stats, timings)
+    return Reconstruction(capture, options, filled, mesh, highlights, stats, timings,
+                          sections={"depth_sensor": choice.to_dict()})

@@ -30,7 +30,9 @@ attached_to = "tissue"       # or "<object>" or "<object>/<part>" (instrument pa
 pixel = [320, 240]           # jaw_lower); on the tissue: a pixel of the capture or a position near the surface
 ```
 
-Every problem is a :class:`ConfigError` whose message starts with the key path (``objects[1].file``):
+The file is read and checked by the configuration stack the batch configuration shares
+(:mod:`rgbd2scene.config_files`). Every problem is a :class:`ConfigError` whose message starts with the key
+path (``objects[1].file``):
 unknown keys, missing keys, wrong types, missing files, poses that are not rigid, ids used twice, tracked
 frames attached to unknown objects. What needs the scene (an object that never enters the view, a tissue
 point off the surface) is checked when the objects are built (:mod:`rgbd2scene.scene.objects.assemble`).
@@ -41,14 +43,14 @@ frames), skipping the ones given.
 from __future__ import annotations
 
 import dataclasses
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
+from pydantic import ConfigDict, Field, ValidationError, create_model
 
+from rgbd2scene.config_files import ConfigError, Strict, model_of, read_config_file, validation_error
 from rgbd2scene.scene.deformation import PRESETS, Deformation
 from rgbd2scene.scene.model import MATERIALS, MAX_ID, TISSUE_ID
 from rgbd2scene.scene.objects.imported import MESH_SUFFIXES, rigid_pose
@@ -62,13 +64,9 @@ TISSUE = "tissue"
 MESH_PART = "body"  # the one part of a mesh object
 
 
-class ConfigError(ValueError):
-    """A problem in the configuration; the message starts with the key path."""
-
-
 # --------------------------------------------------------------------------- the schema (pydantic v2)
 
-class _Strict(BaseModel):
+class _Strict(Strict):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
@@ -96,31 +94,15 @@ class MeshMotionModel(_Strict):
     path_file: str | None = None
 
 
-def _model_of(cls, model_name: str, exclude=(), optional: bool = False, **extra):
-    """A strict pydantic model with the fields of dataclass ``cls`` (types and defaults; all None with
-    ``optional``) plus ``extra`` fields: the options are declared once, in their dataclass."""
-    hints = typing.get_type_hints(cls)
-    fields: dict[str, Any] = {}
-    for f in dataclasses.fields(cls):
-        if f.name in exclude:
-            continue
-        if optional:
-            fields[f.name] = (hints[f.name] | None, None)
-        else:
-            fields[f.name] = (hints[f.name], f.default)
-    fields.update(extra)
-    return create_model(model_name, __base__=_Strict, **fields)
-
-
-MotionModel = _model_of(MotionOptions, "MotionModel")
-InstrumentModel = _model_of(Instrument, "InstrumentModel", kind=(Literal["instrument"], ...),
+MotionModel = model_of(MotionOptions, "MotionModel", _Strict)
+InstrumentModel = model_of(Instrument, "InstrumentModel", _Strict, kind=(Literal["instrument"], ...),
                             name=(str | None, None), id=(int | None, None), motion=(MotionModel | None, None))
 MeshModel = create_model(
     "MeshModel", __base__=_Strict, kind=(Literal["mesh"], ...), file=(str, ...), name=(str | None, None),
     id=(int | None, None), cls=(str | None, Field(None, alias="class")), scale=(float, 1.0),
     recenter=(bool, False), material=(str, "color"), color=(Vec3 | None, None), texture=(str | None, None),
     pose=(PoseModel | list[list[float]] | None, None), motion=(MeshMotionModel | None, None))
-DeformationModel = _model_of(Deformation, "DeformationModel", exclude=("kind",), optional=True,
+DeformationModel = model_of(Deformation, "DeformationModel", _Strict, exclude=("kind",), optional=True,
                              preset=(Literal["none", *PRESETS] | None, None))
 
 
@@ -216,98 +198,16 @@ def _field_error(key: str, exc: Exception, names) -> ConfigError:
     return ConfigError(f"{key}: {message}")
 
 
-def _key(loc) -> str:
-    out = ""
-    for i, part in enumerate(loc):
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif part in _TAGS and i > 0 and isinstance(loc[i - 1], int):
-            continue  # pydantic's discriminated-union tag
-        else:
-            out += ("." if out else "") + str(part)
-    return out or "(top level)"
-
-
-def _model_at(loc) -> type[BaseModel] | None:
-    """The schema model that the key path ``loc`` points into (for the list of known keys)."""
-    model: Any = SceneConfigModel
-    for part in loc:
-        if isinstance(part, int):
-            continue
-        if part in _TAGS:
-            model = _TAGS[part]
-            continue
-        f = model.model_fields.get(part) or next((v for v in model.model_fields.values() if v.alias == part), None)
-        if f is None:
-            return None
-        model = _first_model(f.annotation)
-        if model is None:
-            return None
-    return model
-
-
-def _first_model(annotation) -> type[BaseModel] | None:
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    for arg in typing.get_args(annotation):
-        found = _first_model(arg)
-        if found is not None:
-            return found
-    return None
-
-
-def _pydantic_error(exc: ValidationError) -> ConfigError:
-    err = exc.errors()[0]
-    loc, kind = err["loc"], err["type"]
-    if kind == "extra_forbidden":
-        model = _model_at(loc[:-1])
-        known = sorted(f.alias or name for name, f in model.model_fields.items()) if model else []
-        message = "unknown key" + (f" (known: {', '.join(known)})" if known else "")
-    elif kind == "missing":
-        message = "required key is missing"
-    elif kind in ("union_tag_invalid", "union_tag_not_found"):
-        loc, message = (*loc, "kind"), f"kind must be one of {', '.join(_TAGS)}"
-    else:
-        message = err["msg"].removeprefix("Value error, ")
-        if "input" in err and not isinstance(err["input"], dict | list):
-            message += f", got {err['input']!r}"
-    return ConfigError(f"{_key(loc)}: {message}")
-
-
-def read_config_file(path: str | Path) -> dict:
-    """The mapping in a TOML or YAML file; :class:`ConfigError` when it cannot be read."""
-    import tomllib
-
-    import yaml
-
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError("(file): not found")
-    suffix = path.suffix.lower()
-    try:
-        if suffix == ".toml":
-            data = tomllib.loads(path.read_text())
-        elif suffix in (".yaml", ".yml"):
-            data = yaml.safe_load(path.read_text())
-        else:
-            raise ConfigError(f"(file): unknown format {suffix!r}: use .toml, .yaml or .yml")
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"(file): not readable {suffix[1:].upper()} ({' '.join(str(exc).split())})") from None
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ConfigError("(top level): must be a mapping of keys (objects, tracked_frames, deformation)")
-    return data
-
-
 def parse_scene_config(data: dict, base_dir: Path, default_instrument: bool = False,
                        source: Path | None = None) -> SceneConfig:
     """Validate a configuration mapping (paths relative to ``base_dir``); ``default_instrument``: the
     ``--instrument`` flag's instrument is added too unless the mapping has one."""
+    if not isinstance(data, dict):
+        raise ConfigError("top level: must be a mapping of keys (objects, tracked_frames, deformation)")
     try:
         model = SceneConfigModel.model_validate(data)
     except ValidationError as exc:
-        raise _pydantic_error(exc) from None
+        raise validation_error(exc, SceneConfigModel, _TAGS) from None
     config = SceneConfig(source)
     names = {TISSUE}
     for i, obj in enumerate(model.objects):
