@@ -161,3 +161,31 @@ def test_estimators_on_the_real_hamlyn_frames(shared_samples):
         assert a == pytest.approx(opts.noise_shot, rel=max(tol, 0.05) * 3)
         fall = radial_falloff(img)
         assert fall.k1 == pytest.approx(opts.vignetting_k1, rel=max(tol, 0.02))
+
+
+def test_sensor_options_are_a_nested_record_of_the_render_options():
+    import argparse
+
+    from rgbd2scene.options import add_arguments, flag_of, from_args, from_mapping, resume_diff, to_record
+    from rgbd2scene.stages.render import RenderOptions
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser, RenderOptions)
+    args = parser.parse_args(["--samples", "2", "--no-noise", "--white-balance", "1,0.9,1.1", "--smoke", "30"])
+    opts = from_args(RenderOptions, args).validated()
+    assert opts.samples == 2 and opts.sensor.noise is False and opts.sensor.white_balance == (1.0, 0.9, 1.1)
+    assert opts.environment.smoke == 30.0 and opts.sensor.exposure == "auto"
+    # batch keys: a mapping; the record round-trips through the task file; errors name the dotted key
+    mapped = from_mapping(RenderOptions, {"sensor": {"noise": False, "white_balance": "1,0.9,1.1"},
+                                          "environment": {"smoke": 30}, "samples": 2}, "render").validated()
+    assert mapped == opts
+    record = to_record(opts)
+    assert record["sensor"]["white_balance"] == [1.0, 0.9, 1.1]
+    assert RenderOptions(**record).validated() == opts and resume_diff(opts, record) == []
+    assert "sensor" in resume_diff(RenderOptions().validated(), record)
+    with pytest.raises(OptionError) as err:
+        RenderOptions(sensor=SensorOptions(ae_speed=2.0)).validated()
+    assert err.value.name == "sensor.ae_speed" and flag_of(RenderOptions, err.value.name) == "--ae-speed"
+    with pytest.raises(OptionError, match="unknown key") as err:
+        from_mapping(RenderOptions, {"sensor": {"bogus": 1}}, "render")
+    assert err.value.name == "render.sensor.bogus"

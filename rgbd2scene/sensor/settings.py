@@ -45,7 +45,8 @@ class SensorOptions:
     exposure: str = option("auto", "auto (light power and gain follow the image) or fixed",
                            choices=EXPOSURE_MODES, flag="--exposure")
     exposure_gain: float = option(1.0, "fixed exposure: the sensor gain (light at full power)")
-    target: float = option(69.0, "auto exposure: the trimmed-mean 8-bit luma it aims at (Hamlyn phantom, left eye)")
+    target: float = option(69.0, "auto exposure: the trimmed-mean 8-bit luma it aims at (Hamlyn phantom, left eye)",
+                           flag="--exposure-target")
     ae_speed: float = option(0.3, "auto exposure: weight of the newest frame in its smoothing (0-1]")
     ae_window: int = option(10, "auto exposure: frames it remembers (the recursion restarts nowhere else)")
     light_min: float = option(0.02, "auto exposure: lowest light power, as a share of the scene's light")

@@ -19,12 +19,14 @@ from pathlib import Path
 
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.environment import EnvironmentOptions
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.files.atomic import ensure_output_dir, read_json_object
 from rgbd2scene.groundtruth.passes import parse_maps
 from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
 from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.sensor import SensorOptions
 from rgbd2scene.stages.blender import Event, Task, run_task
 from rgbd2scene.versions import software_versions
 
@@ -83,6 +85,10 @@ class RenderOptions:
                                    cli=False)
     view_culling: bool = option(True, "data renders sync only the triangles the frame's eyes see and their "
                                 "neighbours (the same passes, bit for bit; off: the whole scene)", cli=False)
+    sensor: SensorOptions = option(SensorOptions(), "the scope camera's exposure, sensor and optics effects "
+                                   "(RGB only)", resume=True)
+    environment: EnvironmentOptions = option(EnvironmentOptions(), "what fills the space in front of the scope "
+                                             "(RGB only)", resume=True)
 
     def validated(self) -> RenderOptions:
         """A normalised copy (map list, upper-case device, lower-case denoiser); :class:`OptionError` if bad."""
@@ -104,8 +110,15 @@ class RenderOptions:
             size = tuple(int(v) for v in self.size)
             if len(size) != 2 or min(size) <= 0:
                 raise OptionError("size", f"must be positive, got {'x'.join(map(str, size))}")
+        nested = {}
+        for name, cls in (("sensor", SensorOptions), ("environment", EnvironmentOptions)):
+            value = getattr(self, name)
+            try:
+                nested[name] = (cls.from_dict(value) if isinstance(value, dict) else value).validated()
+            except OptionError as exc:
+                raise OptionError(f"{name}.{exc.name}", exc.message) from None
         return replace(self, gt=",".join(maps) or "none", denoise=denoise, device=device, size=size,
-                       samples=int(self.samples), chunk=int(self.chunk), seed=int(self.seed))
+                       samples=int(self.samples), chunk=int(self.chunk), seed=int(self.seed), **nested)
 
     @property
     def maps(self) -> tuple[str, ...]:
@@ -182,6 +195,8 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
         "seed": options.seed,
         "conventions_version": CONVENTIONS_VERSION,
         "render": render,
+        "sensor": {**render["sensor"], "per_frame": f"{ds.SENSOR_DIR}/{{frame:06d}}.json"},
+        "environment": render["environment"],
         "layout": {"rgb": "{eye}/rgb/{frame:06d}.png", "gt": "{eye}/gt/{frame:06d}.npz"},
     }
 
