@@ -78,3 +78,30 @@ def test_apply_environment_and_options():
     assert out.shape == linear.shape and not np.array_equal(out, linear)
     with pytest.raises(OptionError):
         EnvironmentOptions(smoke=-1.0).validated()
+
+
+def test_smoke_from_the_scene_configuration_and_the_render_switch(tmp_path):
+    from rgbd2scene.capture.camera import Intrinsics
+    from rgbd2scene.scene.config import ConfigError, parse_scene_config
+    from rgbd2scene.scene.model import SceneDescription
+    from rgbd2scene.scene.paths import CameraPath
+    from rgbd2scene.scene.rig import StereoRig
+    from rgbd2scene.stages.render import RenderOptions, scene_environment
+
+    config = parse_scene_config({"environment": {"smoke": 30, "smoke_color": [0.9, 0.8, 0.8]}}, tmp_path)
+    assert config.environment == {"smoke": 30.0, "smoke_color": (0.9, 0.8, 0.8)}
+    with pytest.raises(ConfigError, match="environment.smoke"):
+        parse_scene_config({"environment": {"smoke": -3}}, tmp_path)
+    with pytest.raises(ConfigError, match="environment"):
+        parse_scene_config({"environment": {"fog": 1}}, tmp_path)
+    desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5)),
+                            CameraPath(np.eye(4)[None], fps=25.0, kind="test"), environment=config.environment)
+    again = SceneDescription.from_dict(desc.to_dict())
+    assert again.environment["smoke"] == 30.0
+    # the scene's smoke unless the render sets its own
+    assert scene_environment(RenderOptions().validated(), again).environment.smoke == 30.0
+    own = RenderOptions(environment=EnvironmentOptions(smoke=5.0)).validated()
+    assert scene_environment(own, again).environment.smoke == 5.0
+    plain = SceneDescription(desc.rig, desc.path)
+    assert "environment" not in plain.to_dict()
+    assert scene_environment(RenderOptions().validated(), plain).environment.smoke == 0.0

@@ -228,6 +228,8 @@ class SceneDescription:
     path: CameraPath
     light: Light = field(default_factory=Light)
     objects: list[SceneObject] = field(default_factory=lambda: [tissue_object()])
+    #: fields of :class:`rgbd2scene.environment.EnvironmentOptions` the scene sets (smoke, ...): RGB only
+    environment: dict = field(default_factory=dict)
 
     def __post_init__(self):
         ids = [p.id for o in self.objects for p in o.parts] + [t.id for o in self.objects for t in o.tracked_frames]
@@ -291,8 +293,11 @@ class SceneDescription:
         return {"objects": objects, "classes": self.classes(), "tracked_frames": frames}
 
     def to_dict(self) -> dict:
-        return {"model_version": 2, "rig": self.rig.to_dict(), "path": self.path.to_dict(),
-                "light": self.light.to_dict(), "objects": [o.to_dict() for o in self.objects]}
+        out = {"model_version": 2, "rig": self.rig.to_dict(), "path": self.path.to_dict(),
+               "light": self.light.to_dict(), "objects": [o.to_dict() for o in self.objects]}
+        if self.environment:
+            out["environment"] = dict(self.environment)
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> SceneDescription:
@@ -303,4 +308,4 @@ class SceneDescription:
         else:
             objects = [SceneObject.from_dict(o) for o in objects]
         return cls(StereoRig.from_dict(d["rig"]), CameraPath.from_dict(d["path"]),
-                   Light.from_dict(d.get("light", {})), objects)
+                   Light.from_dict(d.get("light", {})), objects, dict(d.get("environment") or {}))

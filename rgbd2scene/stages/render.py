@@ -212,6 +212,14 @@ def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path
                         f"({', '.join(diffs)}); choose another output folder or delete it")
 
 
+def scene_environment(options: RenderOptions, description: SceneDescription) -> RenderOptions:
+    """The render's environment: the scene's (its configuration file's ``[environment]``) unless the render
+    sets any environment option itself (``--smoke`` ...), which then replaces it whole."""
+    if options.environment != EnvironmentOptions().validated() or not description.environment:
+        return options
+    return replace(options, environment=EnvironmentOptions.from_dict(description.environment).validated())
+
+
 def render_model(description: SceneDescription, options: RenderOptions) -> SceneDescription:
     """The scene model as rendered: the rig resized to ``options.size`` (K follows ``Intrinsics.resized``)."""
     if options.size is None:
@@ -283,6 +291,7 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
         raise UserError(f"{flag_of(RenderOptions, exc.name)}: {exc.message}") from None
 
     scene_dir, _record, description = load_scene(scene_dir, python)
+    options = scene_environment(options, description)
     path_frames = description.path.frames
     n = path_frames if options.frames is None else int(options.frames)
     if n < 1 or n > path_frames:

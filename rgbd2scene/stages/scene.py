@@ -139,7 +139,7 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
             tissue.parts[0].deformation = config.deformation(options.deform, centre=tuple(centre))
         except ConfigError as exc:
             raise _config_error(config, exc) from None
-    return SceneDescription(rig, path, light, [tissue])
+    return SceneDescription(rig, path, light, [tissue], environment=dict(config.environment))
 
 
 def _view_target(rc, path: CameraPath) -> np.ndarray:
