@@ -22,7 +22,7 @@ from rgbd2scene.sensor import SensorOptions
 from rgbd2scene.sensor.estimate import trimmed_mean
 from rgbd2scene.sensor.tone import luminance
 
-pytest.importorskip("bpy")
+bpy = pytest.importorskip("bpy")
 pytest.importorskip("OpenEXR")
 
 from rgbd2scene.cli import main  # noqa: E402
@@ -30,6 +30,7 @@ from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 
 FRAMES = 4
+LIGHT = Light(power_w=0.35, offset=(0.0025, 0.0, 0.0), outlets=2, outlet_spacing=0.008)
 ALL_EFFECTS = ["--smoke", "40", "--motion-blur", "0.5", "--focus-distance", "0.05", "--fstop", "2",
                "--jpeg-quality", "60", "--chroma", "420", "--interlace", "--clean", "--white-balance", "1.1,1,0.9"]
 
@@ -47,7 +48,7 @@ def scene(tmp_path_factory) -> Path:
     poses = np.array([np.eye(4) for _ in range(FRAMES)])
     poses[:, 0, 3] = 0.002 * np.arange(FRAMES)
     desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5), 0.005),
-                            CameraPath(poses, fps=25.0, kind="test"), Light(), [tissue_object("as_captured")])
+                            CameraPath(poses, fps=25.0, kind="test"), LIGHT, [tissue_object("as_captured")])
     write_scene_files(folder, mesh, desc)
     run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict(), "test": True}))
@@ -95,3 +96,15 @@ def test_auto_exposure_brings_the_frame_to_the_target(scene, tmp_path):
     clean = np.asarray(__import__("cv2").imread(str(ds.clean_rgb_path(out, "left", 0)))[..., ::-1], float)
     assert trimmed_mean(luminance(clean)) == pytest.approx(SensorOptions().target, abs=1.5)
     print(f"frame 0: light {record['light']:.3f}, gain {record['gain']:.2f}")
+
+
+def test_two_fibre_outlets_beside_the_lenses(scene):
+    assert np.allclose(LIGHT.outlet_offsets(), [(-0.0015, 0.0, 0.0), (0.0065, 0.0, 0.0)], atol=1e-12)
+    assert Light.from_dict(LIGHT.to_dict()) == LIGHT
+    bpy.ops.wm.open_mainfile(filepath=str(scene / "scene.blend"))
+    lamps = sorted((o for o in bpy.data.objects if o.type == "LIGHT"), key=lambda o: o.name)
+    assert [o.name for o in lamps] == ["ScopeLight", "ScopeLight_2"]
+    camera = bpy.data.objects["Endoscope"]
+    for lamp, (x, y, z) in zip(lamps, LIGHT.outlet_offsets(), strict=True):
+        assert lamp.parent == camera and lamp.data.energy == pytest.approx(0.175)
+        assert tuple(lamp.location) == pytest.approx((x, -y, -z))  # OpenCV -> Blender camera axes

@@ -37,17 +37,32 @@ MAX_ID = 65535
 
 @dataclass
 class Light:
-    """Light at the endoscope tip, rigidly attached to the left eye (offset in its OpenCV frame)."""
+    """Light at the endoscope tip, rigidly attached to the left eye (offset in its OpenCV frame).
+
+    ``outlets`` 2 splits ``power_w`` over two fibre outlets ``outlet_spacing`` apart along the camera's x axis,
+    centred on ``offset``: a stereo scope's light guides end beside its two lenses.
+    """
 
     kind: str = "spot"  # "spot" or "point"; inverse-square falloff either way
     power_w: float = 0.5
     spot_size_deg: float = 100.0
     offset: tuple[float, float, float] = (0.0025, 0.0, 0.0)  # between the eyes, at the tip
     radius: float = 0.0005
+    outlets: int = 1
+    outlet_spacing: float = 0.0
+
+    def outlet_offsets(self) -> list[tuple[float, float, float]]:
+        """Position of each outlet in the left eye's OpenCV frame (metres)."""
+        x, y, z = self.offset
+        if self.outlets == 1:
+            return [(x, y, z)]
+        half = 0.5 * self.outlet_spacing
+        return [(x - half, y, z), (x + half, y, z)]
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "power_w": self.power_w, "spot_size_deg": self.spot_size_deg,
-                "offset": list(self.offset), "radius": self.radius}
+                "offset": list(self.offset), "radius": self.radius, "outlets": self.outlets,
+                "outlet_spacing": self.outlet_spacing}
 
     @classmethod
     def from_dict(cls, d: dict) -> Light:
