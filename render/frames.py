@@ -243,13 +243,13 @@ class Renderer:
                 (cy, "use_denoising", self.denoiser is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
                 (vl, "material_override", None), (vl, "use_pass_combined", True),
-                (vl, "use_pass_z", False), (vl, "use_pass_normal", False), (vl, "use_pass_vector", False),
-                (vl, "use_pass_object_index", False)])
+                # Depth only for environment effects (ray lengths through smoke)
+                (vl, "use_pass_z", self.developer.needs_depth), (vl, "use_pass_normal", False),
+                (vl, "use_pass_vector", False), (vl, "use_pass_object_index", False)])
         if self.denoiser:
             _apply([(cy, "denoiser", self.denoiser)])
         _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
-        # the linear render for the sensor model: Combined (+ Depth for environment effects), 32-bit EXR
-        _apply([(vl, "use_pass_z", self.developer.needs_depth)])
+        # the linear render for the sensor model: Combined (+ Depth), 32-bit EXR
         blur, focus = self.sensor.motion_blur, self.sensor.focus_distance
         _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])
         if blur > 0:  # the ground truth is at the frame: the middle of the shutter
@@ -308,11 +308,6 @@ class Renderer:
             for path in files.values():
                 path.unlink(missing_ok=True)
         return linear, depth
-
-    def render_rgb(self, index: int) -> None:
-        """The current frame's PNGs (sensor record first): linear render -> environment -> sensor model."""
-        linear, depth = self.render_linear(index)
-        self.developer.develop_frame(index, linear, depth)
 
     def meter_frame(self, index: int) -> None:
         """Render frame ``index`` only to meter it for the auto exposure of the frames after it."""
@@ -477,20 +472,32 @@ def render_task(bpy, task: Task, say) -> None:
         # configurations makes Cycles rebuild its scene (the material override changes the shaders), so
         # alternating them per frame costs ~0.1 s more per frame than running each kind back to back.
         spent: dict[int, tuple[float, float]] = {}
-        for index in need_rgb:
-            t0, c0 = time.perf_counter(), _cpu_s()
-            for earlier in renderer.developer.missing_history(index):  # a chunk that starts without them
-                renderer.meter_frame(earlier)
-            renderer.scene.frame_set(index)
-            _check_pose(renderer.scene, renderer.camera, description, index)
-            renderer.render_rgb(index)
-            renderer.free_images()
-            spent[index] = (time.perf_counter() - t0, _cpu_s() - c0)
-            t_rgb, c_rgb = spent[index]
-            if index in need_gt:  # the frame is finished by the data render below
-                say(frame_line(index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
-            else:
-                say(frame_line(index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
+        # The RGB phase is pipelined too: one thread develops frame i-1 (environment, auto exposure, sensor,
+        # PNGs; in frame order, so each frame's metering is there for the next) while Blender renders frame i.
+        t_mark, c_mark = time.perf_counter(), _cpu_s()
+        with ThreadPoolExecutor(max_workers=1) as develop_pool:
+            developing: list[tuple[int, Future]] = []
+            for index in need_rgb + [None]:
+                if index is not None:
+                    # metering a chunk starts without (frames of this chunk are metered in turn by the thread)
+                    for earlier in renderer.developer.missing_history(index, coming=need_rgb):
+                        renderer.meter_frame(earlier)
+                    renderer.scene.frame_set(index)
+                    _check_pose(renderer.scene, renderer.camera, description, index)
+                    linear, depth = renderer.render_linear(index)
+                    renderer.free_images()
+                    developing.append((index, develop_pool.submit(renderer.developer.develop_frame, index, linear,
+                                                                  depth)))
+                while developing and (index is None or len(developing) > 1):
+                    done_index, future = developing.pop(0)
+                    future.result()
+                    now, cpu = time.perf_counter(), _cpu_s()
+                    spent[done_index] = t_rgb, c_rgb = now - t_mark, cpu - c_mark  # this frame's share
+                    t_mark, c_mark = now, cpu
+                    if done_index in need_gt:  # the frame is finished by the data render below
+                        say(frame_line(done_index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
+                    else:
+                        say(frame_line(done_index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
         # The data phase is pipelined: while Blender renders frame i's passes, one thread computes what the
         # model alone gives of frame i (occlusion maps, deformed vertices) and another converts and compresses
         # frame i-1's passes (the data render leaves a core idle: scene sync, BVH builds, 1 sample).

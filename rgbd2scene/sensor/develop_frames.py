@@ -62,11 +62,13 @@ class FrameDeveloper:
                 self.metered[index] = float(record["metered_log_exposure"])
         return self.metered.get(index)
 
-    def missing_history(self, index: int) -> list[int]:
-        """Earlier frames whose metering frame ``index``'s auto exposure needs and nobody has recorded."""
+    def missing_history(self, index: int, coming=()) -> list[int]:
+        """Earlier frames whose metering frame ``index``'s auto exposure needs and nobody has recorded, leaving
+        out the frames in ``coming`` (developed, so metered, before ``index``)."""
         if not self.auto:
             return []
-        return [j for j in self._window(index) if self._known(j) is None]
+        coming = set(coming)
+        return [j for j in self._window(index) if j not in coming and self._known(j) is None]
 
     def scene_linear(self, index: int, linear: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
         """One eye's linear render through the environment effects."""

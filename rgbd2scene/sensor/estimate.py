@@ -29,6 +29,8 @@ from rgbd2scene.sensor.tone import decode, luminance
 MAD_TO_SIGMA = 1.4826
 #: Rings nearer the centre than this (rho) form the plateau that :func:`radial_falloff` takes as 1.
 PLATEAU = 0.5
+#: Pixels left out at each image border: the Hamlyn frames' on-screen overlay rows and frame columns.
+BORDER = 8
 #: Linear signal range of the bins :func:`fit_poisson_gaussian` fits by default (encoded about 0.15-0.63).
 FIT_RANGE = (0.02, 0.35)
 
@@ -80,13 +82,13 @@ class NoiseCurve:
 
 
 def noise_curve(rgb_uint8: np.ndarray, curve: str = "srgb", bins: int = 16, mask: np.ndarray | None = None,
-                min_count: int = 200, border: int = 4) -> NoiseCurve:
+                min_count: int = 200, border: int = BORDER) -> NoiseCurve:
     """Noise variance against signal in the linear domain, pooled over the three channels.
 
     Each sample is a horizontal triple (x0, x1, x2) of one channel: its mean is the signal, and
     (x0 - 2 x1 + x2) / sqrt(6) has the noise's variance when the signal is locally linear. Bins are equally
     spaced in the encoded domain; a bin's variance is (1.4826 MAD)^2 of its residuals (texture and edges are
-    outliers). ``border`` pixels are left out (overlay text, black frame edges).
+    outliers). ``border`` pixels are left out at each side (overlay text, frame edges).
     """
     lin = decode(np.asarray(rgb_uint8, dtype=np.float64) / 255.0, curve)
     h, w = lin.shape[:2]
@@ -153,7 +155,7 @@ class RadialFalloff:
 
 
 def radial_falloff(rgb_uint8: np.ndarray, curve: str = "srgb", rings: int = 10, percentile: float = 90.0,
-                   border: int = 4) -> RadialFalloff:
+                   border: int = BORDER) -> RadialFalloff:
     """Fit the radial brightness fall-off of a frame (linear luminance, ``percentile`` per ring, the brightest
     ring with rho < :data:`PLATEAU` as 1)."""
     y = luminance(decode(np.asarray(rgb_uint8, dtype=np.float64) / 255.0, curve))

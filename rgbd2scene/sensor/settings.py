@@ -9,9 +9,10 @@ RIGHT eye is held out (``benchmarks/bench_sensor.py`` prints both):
 - ``noise_shot`` 2.5e-4, ``noise_read`` 0: the Poisson-Gaussian fit var = a x + b of its linear-domain noise
   (:func:`~rgbd2scene.sensor.estimate.fit_poisson_gaussian`, sRGB decoding; right eye a = 2.2e-4, b = 0).
   The fitted b is 0: below linear 0.02 one 8-bit code step exceeds the read noise, so this frame cannot see it.
-- ``vignetting_k1`` -1.73, ``vignetting_k2`` 0.57: its radial fall-off V = 1 + k1 rho^2 + k2 rho^4 (right eye
-  -1.93, 0.79), which is the optics and the scope's illumination fall-off together: the level is 0.58 of the
-  centre at half the half-diagonal (right 0.54) and the corners are black (the scope's round field stop).
+- ``vignetting_k1`` -1.72, ``vignetting_k2`` 0.50: its radial fall-off V = 1 + k1 rho^2 + k2 rho^4
+  (:func:`~rgbd2scene.sensor.estimate.radial_falloff`; right eye -1.92, 0.74), which is the optics and the
+  scope's illumination fall-off together: V(0.5) = 0.60 (right 0.57) and the corners are black (the scope's
+  round field stop).
 - ``tone`` srgb, white balance neutral: one frame without a colour chart fixes neither; the scene's texture
   already holds the capture's own colours.
 """
@@ -52,8 +53,8 @@ class SensorOptions:
     light_min: float = option(0.02, "auto exposure: lowest light power, as a share of the scene's light")
     gain_max: float = option(16.0, "auto exposure: highest sensor gain")
     vignetting: bool = option(True, "no vignetting")
-    vignetting_k1: float = option(-1.73, "vignetting V = 1 + k1 rho^2 + k2 rho^4 (rho: radius / half-diagonal)")
-    vignetting_k2: float = option(0.57, "vignetting rho^4 coefficient")
+    vignetting_k1: float = option(-1.72, "vignetting V = 1 + k1 rho^2 + k2 rho^4 (rho: radius / half-diagonal)")
+    vignetting_k2: float = option(0.50, "vignetting rho^4 coefficient")
     noise: bool = option(True, "no sensor noise")
     noise_shot: float = option(2.5e-4, "Poisson-Gaussian noise: variance per unit signal (at gain 1, linear 0-1)")
     noise_read: float = option(0.0, "Poisson-Gaussian noise: signal-independent variance (at gain 1)")
