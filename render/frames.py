@@ -254,9 +254,9 @@ class Renderer:
         _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])
         if blur > 0:  # the ground truth is at the frame: the middle of the shutter
             _apply([(sc.render, "motion_blur_position", "CENTER"), (sc.render, "motion_blur_shutter", blur)])
-        if focus > 0:
+        if focus > 0:  # Cycles' aperture diameter is lens / f-number (both in mm of its virtual 36 mm sensor)
             _apply([(self.camera.data.dof, "focus_distance", focus),
-                    (self.camera.data.dof, "aperture_fstop", self.sensor.fstop)])
+                    (self.camera.data.dof, "aperture_fstop", self.camera.data.lens / self.sensor.aperture_mm)])
         s = sc.render.image_settings
         _apply([(s, "media_type", "MULTI_LAYER_IMAGE"), (s, "file_format", "OPEN_EXR_MULTILAYER"),
                 (s, "color_depth", "32"), (s, "exr_codec", "NONE"), (s, "use_exr_interleave", True),

@@ -31,7 +31,7 @@ from tests.conftest import write_scene_files  # noqa: E402
 
 FRAMES = 4
 LIGHT = Light(power_w=0.35, offset=(0.0025, 0.0, 0.0), outlets=2, outlet_spacing=0.008)
-ALL_EFFECTS = ["--smoke", "40", "--motion-blur", "0.5", "--focus-distance", "0.05", "--fstop", "2",
+ALL_EFFECTS = ["--smoke", "40", "--motion-blur", "0.5", "--focus-distance", "0.05", "--aperture-mm", "1",
                "--jpeg-quality", "60", "--chroma", "420", "--interlace", "--clean", "--white-balance", "1.1,1,0.9"]
 
 

@@ -13,8 +13,9 @@ class EnvironmentOptions:
     """What fills the space between the scope and the surface. It changes only the RGB images: the ground truth
     describes the surface behind it."""
 
-    smoke: float = option(0.0, "surgical smoke: mean extinction coefficient in 1/m (0: none; 20: light haze at "
-                          "5 cm, 60: thick)", flag="--smoke", metavar="DENSITY")
+    smoke: float = option(0.0, "surgical smoke: mean extinction coefficient in 1/m; a surface d metres away keeps "
+                          "exp(-2 DENSITY d) of its light (0: none; 4: haze, 70 %% left at 5 cm; 25: thick, 8 %%)",
+                          flag="--smoke", metavar="DENSITY")
     smoke_color: tuple[float, float, float] = option((0.85, 0.85, 0.85), "smoke albedo, linear R,G,B",
                                                      parse=parse_triple, metavar="R,G,B")
     smoke_variation: float = option(0.6, "smoke: relative amplitude of its density variation (0-1)")

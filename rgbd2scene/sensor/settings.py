@@ -68,7 +68,8 @@ class SensorOptions:
     clean: bool = option(False, "also write the image without noise and compression to {eye}/rgb_clean/")
     motion_blur: float = option(0.0, "motion blur: shutter time in frames, centred on the frame (0: off)")
     focus_distance: float = option(0.0, "depth of field: focus distance in metres (0: off)")
-    fstop: float = option(4.0, "depth of field: aperture f-number")
+    aperture_mm: float = option(0.5, "depth of field: the lens's aperture (entrance pupil) diameter, mm; a "
+                                "pixel's blur circle is fx * D * |1/z - 1/z_focus| pixels")
 
     def validated(self) -> SensorOptions:
         """A checked copy; :class:`OptionError` names the bad field."""
@@ -89,7 +90,7 @@ class SensorOptions:
                   ("jpeg_quality", 0 <= int(self.jpeg_quality) <= 100, "must be 0 (off) to 100"),
                   ("motion_blur", 0 <= self.motion_blur <= 2, "must be 0 (off) to 2 frames"),
                   ("focus_distance", self.focus_distance >= 0, "must not be negative"),
-                  ("fstop", self.fstop > 0, "must be positive")]
+                  ("aperture_mm", self.aperture_mm > 0, "must be positive")]
         for name, ok, message in checks:
             if not ok:
                 raise OptionError(name, f"{message}, got {getattr(self, name)!r}")
