@@ -313,7 +313,7 @@ class Renderer:
         """Render frame ``index`` only to meter it for the auto exposure of the frames after it."""
         self.scene.frame_set(index)
         linear, depth = self.render_linear(index)
-        left = self.developer.scene_linear(index, linear["left"], None if depth is None else depth["left"])
+        left = self.developer.scene_linear(index, "left", linear["left"], None if depth is None else depth["left"])
         self.developer.meter(index, left)
 
     def render_data(self, index: int) -> dict:

@@ -189,3 +189,37 @@ def test_sensor_options_are_a_nested_record_of_the_render_options():
     with pytest.raises(OptionError, match="unknown key") as err:
         from_mapping(RenderOptions, {"sensor": {"bogus": 1}}, "render")
     assert err.value.name == "render.sensor.bogus"
+
+
+def test_frame_developer_writes_records_first_and_takes_a_lens_step(tmp_path):
+    from rgbd2scene.dataset import layout as ds
+    from rgbd2scene.environment import EnvironmentOptions
+    from rgbd2scene.sensor.develop_frames import FrameDeveloper
+
+    K = np.array([[40.0, 0, 15.5], [0, 40.0, 11.5], [0, 0, 1]])
+    rng = np.random.default_rng(6)
+    frames = [{eye: (rng.random((24, 32, 3)) * 0.3).astype(np.float32) for eye in ("left", "right")}
+              for _ in range(3)]
+    seen = []
+
+    def lens(linear, eye):
+        seen.append(eye)
+        return linear[:, ::-1]  # any resampling: here a mirror
+
+    opts = SensorOptions(ae_window=2).validated()
+    dev = FrameDeveloper(tmp_path, opts, EnvironmentOptions().validated(), 0, 25.0, K, lens=lens)
+    for i, linear in enumerate(frames):
+        record = dev.develop_frame(i, linear)
+        assert ds.read_sensor_record(tmp_path, i) == record and ds.rgb_done(tmp_path, i)
+    assert seen == ["left", "right"] * 3
+    assert record["window"] == [1, 2]
+    expected = smoothed_log_exposure([dev.metered[1], dev.metered[2]], opts)
+    assert opts.light_min < record["light"] and record["gain"] < opts.gain_max  # neither at its limit
+    assert np.log(record["total"]) == pytest.approx(expected, abs=1e-9)
+    # a second developer (a resumed chunk) reads the metering from the records; a frame whose history
+    # nobody recorded is refused
+    again = FrameDeveloper(tmp_path, opts, EnvironmentOptions().validated(), 0, 25.0, K, lens=lens)
+    assert again.missing_history(3) == [] and again.missing_history(6) == [5]
+    assert again.missing_history(6, coming=[5]) == []
+    with pytest.raises(RuntimeError, match="metering"):
+        again.develop_frame(6, frames[0])

@@ -15,6 +15,7 @@ is rounded to :data:`METER_DECIMALS` so that the tiny float differences of a re-
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -31,16 +32,22 @@ METER_DECIMALS = 4
 
 class FrameDeveloper:
     """Environment + sensor model of one dataset (``K``: the intrinsics, for ray lengths; ``fps``: the time
-    of each frame for drifting effects)."""
+    of each frame for drifting effects).
+
+    ``lens``, when given, maps one eye's linear image (after the environment) to the image the scope's lens
+    forms, ``lens(linear, eye) -> linear`` (a lens-distortion resampling); metering and the sensor model see
+    its output.
+    """
 
     def __init__(self, out_dir: str | Path, sensor: SensorOptions, environment: EnvironmentOptions, seed: int,
-                 fps: float, K: np.ndarray):
+                 fps: float, K: np.ndarray, lens: Callable[[np.ndarray, str], np.ndarray] | None = None):
         self.out_dir = Path(out_dir)
         self.sensor = sensor
         self.seed = int(seed)
         self.fps = float(fps)
         self.K = np.asarray(K, dtype=np.float64)
         self.effects = active_effects(environment, self.seed)
+        self.lens = lens
         self.metered: dict[int, float] = {}
 
     @property
@@ -70,11 +77,12 @@ class FrameDeveloper:
         coming = set(coming)
         return [j for j in self._window(index) if j not in coming and self._known(j) is None]
 
-    def scene_linear(self, index: int, linear: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
-        """One eye's linear render through the environment effects."""
-        if not self.effects:
-            return np.asarray(linear, dtype=np.float32)
-        return apply_environment(linear, ray_length(depth, self.K), index / self.fps, self.effects)
+    def scene_linear(self, index: int, eye: str, linear: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
+        """One eye's linear render through the environment effects and the lens."""
+        linear = np.asarray(linear, dtype=np.float32)
+        if self.effects:
+            linear = apply_environment(linear, ray_length(depth, self.K), index / self.fps, self.effects)
+        return linear if self.lens is None else self.lens(linear, eye)
 
     def meter(self, index: int, left_linear: np.ndarray) -> float:
         """Meter frame ``index`` (its left eye, after the environment) and remember it."""
@@ -85,7 +93,8 @@ class FrameDeveloper:
     def develop_frame(self, index: int, linear: dict[str, np.ndarray],
                       depth: dict[str, np.ndarray] | None = None) -> dict:
         """Write frame ``index`` (both eyes) from its linear renders; returns its sensor record."""
-        scene = {eye: self.scene_linear(index, linear[eye], None if depth is None else depth[eye]) for eye in linear}
+        scene = {eye: self.scene_linear(index, eye, linear[eye], None if depth is None else depth[eye])
+                 for eye in linear}
         record: dict = {"frame": int(index), "exposure_mode": self.sensor.exposure}
         history: list[float] = []
         if self.auto:

@@ -58,7 +58,7 @@ class SensorOptions:
     noise: bool = option(True, "no sensor noise")
     noise_shot: float = option(2.5e-4, "Poisson-Gaussian noise: variance per unit signal (at gain 1, linear 0-1)")
     noise_read: float = option(0.0, "Poisson-Gaussian noise: signal-independent variance (at gain 1)")
-    white_balance: tuple[float, float, float] = option((1.0, 1.0, 1.0), "white-balance gains R,G,B",
+    white_balance: tuple[float, float, float] = option((1.0, 1.0, 1.0), "white-balance gains R,G,B (default 1,1,1)",
                                                        parse=parse_triple, metavar="R,G,B")
     tone: str = option("srgb", "tone curve", choices=TONE_CURVES)
     gamma: float = option(2.2, "tone curve gamma (with --tone gamma)")
