@@ -85,6 +85,8 @@ def test_effects_leave_ground_truth_untouched_and_pngs_repeat(scene, tmp_path):
     info = json.loads((full / "dataset.json").read_text())
     assert info["sensor"]["exposure"] == "auto" and info["sensor"]["jpeg_quality"] == 60
     assert info["environment"]["smoke"] == 40.0 and info["render"]["sensor"]["interlace"] is True
+    assert info["layout"]["sensor"] == "sensor/{frame:06d}.json"
+    assert info["layout"]["rgb_clean"] == "{eye}/rgb_clean/{frame:06d}.png"
 
 
 def test_auto_exposure_brings_the_frame_to_the_target(scene, tmp_path):

@@ -195,9 +195,11 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
         "seed": options.seed,
         "conventions_version": CONVENTIONS_VERSION,
         "render": render,
-        "sensor": {**render["sensor"], "per_frame": f"{ds.SENSOR_DIR}/{{frame:06d}}.json"},
+        "sensor": render["sensor"],
         "environment": render["environment"],
-        "layout": {"rgb": "{eye}/rgb/{frame:06d}.png", "gt": "{eye}/gt/{frame:06d}.npz"},
+        "layout": {"rgb": "{eye}/rgb/{frame:06d}.png", "gt": "{eye}/gt/{frame:06d}.npz",
+                   "sensor": f"{ds.SENSOR_DIR}/{{frame:06d}}.json",
+                   **({"rgb_clean": f"{{eye}}/{ds.CLEAN_DIR}/{{frame:06d}}.png"} if options.sensor.clean else {})},
     }
 
 
