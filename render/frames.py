@@ -249,7 +249,6 @@ class Renderer:
         if self.denoiser:
             _apply([(cy, "denoiser", self.denoiser)])
         _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
-        # the linear render for the sensor model: Combined (+ Depth), 32-bit EXR
         blur, focus = self.sensor.motion_blur, self.sensor.focus_distance
         _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])
         if blur > 0:  # the ground truth is at the frame: the middle of the shutter
@@ -257,6 +256,7 @@ class Renderer:
         if focus > 0:  # Cycles' aperture diameter is lens / f-number (both in mm of its virtual 36 mm sensor)
             _apply([(self.camera.data.dof, "focus_distance", focus),
                     (self.camera.data.dof, "aperture_fstop", self.camera.data.lens / self.sensor.aperture_mm)])
+        # the linear render for the sensor model: Combined (+ Depth), 32-bit EXR
         s = sc.render.image_settings
         _apply([(s, "media_type", "MULTI_LAYER_IMAGE"), (s, "file_format", "OPEN_EXR_MULTILAYER"),
                 (s, "color_depth", "32"), (s, "exr_codec", "NONE"), (s, "use_exr_interleave", True),
