@@ -9,9 +9,11 @@ again (resume). Progress goes out as the protocol's lines (``frame 3 rgb ...``, 
 
 Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, pivot LEFT):
 
-1. **RGB**: the scene as built, ``--samples`` per pixel (adaptive), the usual pixel filter, no passes;
-   Blender writes the 8-bit PNGs itself, with the scene's view transform, exactly as it saves renders
-   (no numpy re-encoding of a linear Combined pass).
+1. **RGB**: the scene as built, ``--samples`` per pixel (adaptive), the usual pixel filter, motion blur
+   (shutter centred on the frame) and depth of field when asked for; Blender writes the linear Combined pass
+   (and the Depth pass when an environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs:
+   environment effects, auto exposure and the sensor model (:class:`rgbd2scene.sensor.develop_frames.
+   FrameDeveloper`).
 2. **Data** (only when ground truth is asked for): 1 sample per pixel, pixel filter width 0.01 (the one
    sample goes through the pixel centre, +-0.005 px), ``max_bounces`` 0, no denoising, a black emission
    material override (no lights, BSDFs or subsurface are evaluated: the geometry alone decides every
@@ -59,6 +61,7 @@ from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passe
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.sensor.develop_frames import FrameDeveloper
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
 from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
 
@@ -66,7 +69,7 @@ GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
 #: Pass name in the EXR channel names (``<ViewLayer>.<pass>.<channel>``) -> our pass key.
 EXR_PASSES = {"depth": ("Depth", "Z"), "normal": ("Normal", "XYZ"), "vector": ("Vector", "XYZW"),
-              "index": ("Object Index", "X")}
+              "index": ("Object Index", "X"), "combined": ("Combined", "RGB")}
 DENOISERS = {"none": None, "oidn": "OPENIMAGEDENOISE", "optix": "OPTIX"}
 #: How far (matrix entries, metres for translations) the blend's keyed camera may be from the model's pose:
 #: Blender keys in float32 (measured 4e-7).
@@ -182,6 +185,9 @@ class Renderer:
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
         self.maps = options.maps
+        self.sensor = options.sensor
+        self.developer = FrameDeveloper(out_dir, options.sensor, options.environment, options.seed,
+                                        description.path.fps, self.K)
         self.passes = passes_needed(self.maps)
         self.gt_material = _gt_material(bpy) if self.maps else None
         self.view_layer = scene.view_layers[0]
@@ -237,14 +243,24 @@ class Renderer:
                 (cy, "use_denoising", self.denoiser is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
                 (vl, "material_override", None), (vl, "use_pass_combined", True),
-                (vl, "use_pass_z", False), (vl, "use_pass_normal", False), (vl, "use_pass_vector", False),
-                (vl, "use_pass_object_index", False)])
+                # Depth only for environment effects (ray lengths through smoke)
+                (vl, "use_pass_z", self.developer.needs_depth), (vl, "use_pass_normal", False),
+                (vl, "use_pass_vector", False), (vl, "use_pass_object_index", False)])
         if self.denoiser:
             _apply([(cy, "denoiser", self.denoiser)])
         _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
+        blur, focus = self.sensor.motion_blur, self.sensor.focus_distance
+        _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])
+        if blur > 0:  # the ground truth is at the frame: the middle of the shutter
+            _apply([(sc.render, "motion_blur_position", "CENTER"), (sc.render, "motion_blur_shutter", blur)])
+        if focus > 0:  # Cycles' aperture diameter is lens / f-number (both in mm of its virtual 36 mm sensor)
+            _apply([(self.camera.data.dof, "focus_distance", focus),
+                    (self.camera.data.dof, "aperture_fstop", self.camera.data.lens / self.sensor.aperture_mm)])
+        # the linear render for the sensor model: Combined (+ Depth), 32-bit EXR
         s = sc.render.image_settings
-        _apply([(s, "media_type", "IMAGE"), (s, "file_format", "PNG"), (s, "color_mode", "RGB"),
-                (s, "color_depth", "8"), (s, "views_format", "INDIVIDUAL")])
+        _apply([(s, "media_type", "MULTI_LAYER_IMAGE"), (s, "file_format", "OPEN_EXR_MULTILAYER"),
+                (s, "color_depth", "32"), (s, "exr_codec", "NONE"), (s, "use_exr_interleave", True),
+                (s, "views_format", "INDIVIDUAL")])
 
     def configure_data(self) -> None:
         sc, cy, vl, p = self.scene, self.scene.cycles, self.view_layer, self.passes
@@ -255,7 +271,9 @@ class Renderer:
                 (cy, "use_animated_seed", False), (vl, "material_override", self.gt_material),
                 (vl, "use_pass_z", True), (vl, "use_pass_normal", "normal" in p),
                 (vl, "use_pass_vector", "vector" in p), (vl, "use_pass_object_index", "index" in p)]
-               + [(mask.modifier, "show_render", True) for mask in self.view_masks])
+               + [(mask.modifier, "show_render", True) for mask in self.view_masks]
+               # exact per pixel centre at the frame: no shutter interval, no aperture
+               + [(sc.render, "use_motion_blur", False), (self.camera.data.dof, "use_dof", False)])
         s = sc.render.image_settings
         _apply([(s, "media_type", "MULTI_LAYER_IMAGE"), (s, "file_format", "OPEN_EXR_MULTILAYER"),
                 (s, "color_depth", "32"),  # half floats round depth by up to 0.03 mm
@@ -274,11 +292,29 @@ class Renderer:
 
     # -- one frame --
 
-    def render_rgb(self, index: int) -> None:
+    def render_linear(self, index: int) -> tuple[dict, dict | None]:
+        """The current frame's linear RGB render of both eyes, float32 (H, W, 3), and its Depth pass (only when
+        the environment needs it)."""
         self.configure_rgb()
-        files = self._render(self.work / f"{ds.frame_name(index)}_rgb", ".png")
-        for eye, src in files.items():
-            ds.install_file(src, ds.frame_paths(self.out_dir, eye, index).rgb)
+        files = self._render(self.work / f"{ds.frame_name(index)}_rgb", ".exr")
+        linear, depth = {}, {} if self.developer.needs_depth else None
+        try:
+            for eye, path in files.items():
+                passes = read_passes(path, {"combined", "depth"} if depth is not None else {"combined"})
+                linear[eye] = passes["combined"]
+                if depth is not None:
+                    depth[eye] = passes["depth"]
+        finally:
+            for path in files.values():
+                path.unlink(missing_ok=True)
+        return linear, depth
+
+    def meter_frame(self, index: int) -> None:
+        """Render frame ``index`` only to meter it for the auto exposure of the frames after it."""
+        self.scene.frame_set(index)
+        linear, depth = self.render_linear(index)
+        left = self.developer.scene_linear(index, "left", linear["left"], None if depth is None else depth["left"])
+        self.developer.meter(index, left)
 
     def render_data(self, index: int) -> dict:
         """The data render of the current frame (Blender side): EXR files; poses and tracked objects from
@@ -436,18 +472,32 @@ def render_task(bpy, task: Task, say) -> None:
         # configurations makes Cycles rebuild its scene (the material override changes the shaders), so
         # alternating them per frame costs ~0.1 s more per frame than running each kind back to back.
         spent: dict[int, tuple[float, float]] = {}
-        for index in need_rgb:
-            t0, c0 = time.perf_counter(), _cpu_s()
-            renderer.scene.frame_set(index)
-            _check_pose(renderer.scene, renderer.camera, description, index)
-            renderer.render_rgb(index)
-            renderer.free_images()
-            spent[index] = (time.perf_counter() - t0, _cpu_s() - c0)
-            t_rgb, c_rgb = spent[index]
-            if index in need_gt:  # the frame is finished by the data render below
-                say(frame_line(index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
-            else:
-                say(frame_line(index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
+        # The RGB phase is pipelined too: one thread develops frame i-1 (environment, auto exposure, sensor,
+        # PNGs; in frame order, so each frame's metering is there for the next) while Blender renders frame i.
+        t_mark, c_mark = time.perf_counter(), _cpu_s()
+        with ThreadPoolExecutor(max_workers=1) as develop_pool:
+            developing: list[tuple[int, Future]] = []
+            for index in need_rgb + [None]:
+                if index is not None:
+                    # metering a chunk starts without (frames of this chunk are metered in turn by the thread)
+                    for earlier in renderer.developer.missing_history(index, coming=need_rgb):
+                        renderer.meter_frame(earlier)
+                    renderer.scene.frame_set(index)
+                    _check_pose(renderer.scene, renderer.camera, description, index)
+                    linear, depth = renderer.render_linear(index)
+                    renderer.free_images()
+                    developing.append((index, develop_pool.submit(renderer.developer.develop_frame, index, linear,
+                                                                  depth)))
+                while developing and (index is None or len(developing) > 1):
+                    done_index, future = developing.pop(0)
+                    future.result()
+                    now, cpu = time.perf_counter(), _cpu_s()
+                    spent[done_index] = t_rgb, c_rgb = now - t_mark, cpu - c_mark  # this frame's share
+                    t_mark, c_mark = now, cpu
+                    if done_index in need_gt:  # the frame is finished by the data render below
+                        say(frame_line(done_index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
+                    else:
+                        say(frame_line(done_index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
         # The data phase is pipelined: while Blender renders frame i's passes, one thread computes what the
         # model alone gives of frame i (occlusion maps, deformed vertices) and another converts and compresses
         # frame i-1's passes (the data render leaves a core idle: scene sync, BVH builds, 1 sample).

@@ -21,9 +21,10 @@ Blender-side conventions (the project's contract is OpenCV; see ``rgbd2scene.con
   ``interocular_distance = baseline``: the left view is the camera itself and the right view is it
   translated by +baseline along its x axis, with the same K (PARALLEL applies no shift; OFFAXIS would).
 * **Light.** "ScopeLight" is parented to the camera at ``Light.offset`` (OpenCV camera frame, so
-  ``(x, -y, -z)`` in Blender's camera frame), pointing down the camera's -Z (the view). Energy in watts,
-  Blender's inverse-square falloff, ``shadow_soft_size = radius``. The world is black (strength 0) unless
-  an ambient strength is asked for, so the scope light is the only light.
+  ``(x, -y, -z)`` in Blender's camera frame), pointing down the camera's -Z (the view); with two outlets
+  "ScopeLight" and "ScopeLight_2" sit beside the lenses (``Light.outlet_offsets``), half the power each.
+  Energy in watts, Blender's inverse-square falloff, ``shadow_soft_size = radius``. The world is black
+  (strength 0) unless an ambient strength is asked for, so the scope light is the only light.
 * **Colour.** View transform 'Standard', look None, exposure 0, gamma 1, display sRGB, dither 0: with the
   "as_captured" material (Emission strength 1 from the sRGB texture) an 8-bit render from the capture
   camera reproduces the texture bytes. The materials' node graphs are in ``render.materials``.
@@ -312,12 +313,18 @@ def key_poses(scene, obj, matrices: np.ndarray) -> None:
             fcurve.update()
 
 
-def add_scope_light(camera, light: Light, name: str = LIGHT):
-    """Spot or point light parented to the camera at ``light.offset`` (OpenCV camera frame)."""
+def add_scope_light(camera, light: Light, name: str = LIGHT) -> list:
+    """Spot or point light(s) parented to the camera at the light's outlets (OpenCV camera frame)."""
     if light.kind not in ("spot", "point"):
         raise ValueError(f"unknown light kind {light.kind!r}; choose 'spot' or 'point'")
+    offsets = light.outlet_offsets()
+    return [_add_outlet(camera, light, offset, light.power_w / len(offsets), name if i == 0 else f"{name}_{i + 1}")
+            for i, offset in enumerate(offsets)]
+
+
+def _add_outlet(camera, light: Light, offset, power_w: float, name: str):
     data = bpy.data.lights.new(name, type=light.kind.upper())
-    data.energy = light.power_w
+    data.energy = power_w
     data.shadow_soft_size = light.radius
     if light.kind == "spot":
         data.spot_size = math.radians(min(light.spot_size_deg, 180.0))
@@ -326,7 +333,7 @@ def add_scope_light(camera, light: Light, name: str = LIGHT):
     camera.users_collection[0].objects.link(obj)
     obj.parent = camera
     obj.matrix_parent_inverse = Matrix.Identity(4)
-    x, y, z = light.offset
+    x, y, z = offset
     obj.location = (x, -y, -z)  # OpenCV camera frame -> Blender camera frame
     obj.rotation_euler = (0.0, 0.0, 0.0)  # spot points down the camera's -Z: along the view
     return obj

@@ -14,6 +14,11 @@ more. ``group`` names the ``--help`` section of a flag.
 
 Problems found by the library are :class:`OptionError`\\ s naming the field, which the CLI reports with the
 flag and a batch build with the configuration key (:meth:`OptionError.render`).
+
+A field whose default is itself an options dataclass is a nested record (e.g. the render stage's ``sensor``):
+its fields get flags of their own (in an argument group named after it), a configuration gives it as a
+mapping (``render: {sensor: {noise: false}}``), records hold it as a dict, and an error in it is named with
+a dotted path (``sensor.ae_speed``), which :func:`flag_of` resolves to the nested field's flag.
 """
 
 from __future__ import annotations
@@ -68,11 +73,27 @@ def option(default: Any = None, help: str = "", *, flag: str | None = None, choi
             "metavar": metavar, "file": file, "nargs": nargs, "group": group}
     if isinstance(default, (list, dict, set)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
+    if dataclasses.is_dataclass(default):  # a nested record: each instance gets its own copy
+        return dataclasses.field(default_factory=lambda: dataclasses.replace(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
 
 
+def nested_records(cls) -> dict[str, type]:
+    """Fields of ``cls`` that are nested option records -> their dataclass."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.default_factory is not dataclasses.MISSING:
+            value = f.default_factory()
+            if dataclasses.is_dataclass(value):
+                out[f.name] = type(value)
+    return out
+
+
 def flag_of(cls, name: str) -> str:
-    """The command-line flag of field ``name`` (for error messages)."""
+    """The command-line flag of field ``name`` (for error messages; ``record.field`` for a nested record's)."""
+    if "." in name:
+        head, rest = name.split(".", 1)
+        return flag_of(nested_records(cls)[head], rest)
     f = {f.name: f for f in dataclasses.fields(cls)}[name]
     if f.metadata.get("flag"):
         return f.metadata["flag"]
@@ -126,11 +147,19 @@ def _argparse_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
 
 def add_arguments(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls, exclude=()) -> None:
     """Add one flag per CLI field of the options dataclass ``cls`` (defaults and help from the fields); fields
-    with a ``group`` go to that section of ``--help`` (created on ``parser`` when it is a parser)."""
+    with a ``group`` go to that section of ``--help`` (created on ``parser`` when it is a parser), and a nested
+    record's fields go in an argument group of their own."""
     sections: dict[str, Any] = {}
+    nested = nested_records(cls)
     for f in dataclasses.fields(cls):
         meta = f.metadata
         if not meta.get("cli", True) or f.name in exclude:
+            continue
+        if f.name in nested:
+            if isinstance(parser, argparse._ArgumentGroup):  # argparse groups do not nest
+                add_arguments(parser, nested[f.name])
+            else:
+                add_arguments(parser.add_argument_group(f.name, meta.get("help") or None), nested[f.name])
             continue
         target = parser
         if meta.get("group") and isinstance(parser, argparse.ArgumentParser):
@@ -164,12 +193,15 @@ def flags_of(parser: argparse.ArgumentParser) -> dict[str, str]:
 
 def from_args(cls, args: argparse.Namespace, **overrides):
     """The options dataclass from parsed arguments (fields without a flag keep their defaults; several values
-    of a tuple field become a tuple)."""
+    of a tuple field become a tuple; nested records from their own flags)."""
+    nested = nested_records(cls)
     values = {}
     for f in dataclasses.fields(cls):
-        if hasattr(args, f.name):
+        if hasattr(args, f.name) and f.name not in nested:
             value = getattr(args, f.name)
             values[f.name] = tuple(value) if isinstance(value, list) and _is_tuple(cls, f) else value
+    values.update({f.name: from_args(nested[f.name], args) for f in dataclasses.fields(cls)
+                   if f.name in nested and f.metadata.get("cli", True)})
     values.update(overrides)
     return cls(**values)
 
@@ -192,9 +224,15 @@ def from_mapping(cls, values: Mapping[str, Any], where: str = "", base_dir: str 
     if unknown:
         raise OptionError(prefix + unknown[0], f"unknown key (known: {', '.join(sorted(names))})")
     hints = typing.get_type_hints(cls)
+    nested = nested_records(cls)
     kwargs = {}
     for key, value in values.items():
         meta = names[key].metadata
+        if key in nested:
+            if not dataclasses.is_dataclass(value):
+                value = from_mapping(nested[key], value, prefix + key, base_dir)
+            kwargs[key] = value
+            continue
         parse = meta.get("parse")
         if parse is not None and isinstance(value, str):
             try:

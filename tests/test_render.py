@@ -25,6 +25,7 @@ from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps
 from rgbd2scene.scene.model import Light, Material, Part, SceneDescription, SceneObject, tissue_object
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
+from rgbd2scene.sensor import SensorOptions
 
 BASELINE = 0.005
 GT_KEYS = {"depth": ("float32", 2), "disparity": ("float32", 2), "normals": ("float32", 3),
@@ -212,7 +213,8 @@ def scene_b(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def dataset_a(scene_a, tmp_path_factory):
     out = tmp_path_factory.mktemp("data_a") / "ds"
-    summary = render_dataset(scene_a, out, samples=2, denoise="none", progress=False)  # exact colours
+    # exact colours: the ideal camera (fixed exposure at gain 1, no noise or vignetting: plain sRGB encoding)
+    summary = render_dataset(scene_a, out, samples=2, denoise="none", progress=False, sensor=SensorOptions.ideal())
     return out, summary
 
 

@@ -236,3 +236,30 @@ def sweep_dead_runs(root: str | Path) -> int:
         with contextlib.suppress(OSError):
             work.rmdir()  # only when empty
     return count
+
+
+#: Per-frame sensor records (auto exposure): ``DATASET/sensor/NNNNNN.json``.
+SENSOR_DIR = "sensor"
+#: The noise-free images beside the noisy ones (``--clean``): ``DATASET/{eye}/rgb_clean/NNNNNN.png``.
+CLEAN_DIR = "rgb_clean"
+
+
+def sensor_path(root: str | Path, index: int) -> Path:
+    """``DATASET/sensor/NNNNNN.json``: how frame ``index`` was exposed (written before its PNGs)."""
+    return Path(root) / SENSOR_DIR / f"{frame_name(index)}.json"
+
+
+def clean_rgb_path(root: str | Path, eye: str, index: int) -> Path:
+    """``DATASET/{eye}/rgb_clean/NNNNNN.png``: the image without noise and compression (written before the
+    noisy one, so a frame whose ``rgb`` PNGs exist has it)."""
+    return frame_paths(root, eye, index).rgb.parent.parent / CLEAN_DIR / f"{frame_name(index)}.png"
+
+
+def write_sensor_record(root: str | Path, index: int, record: dict) -> None:
+    write_json(sensor_path(root, index), record)
+
+
+def read_sensor_record(root: str | Path, index: int) -> dict | None:
+    """The sensor record of frame ``index``, or None when it is missing."""
+    path = sensor_path(root, index)
+    return read_json_object(path, "sensor record") if path.is_file() else None

@@ -24,6 +24,9 @@ pose = { position = [0.0, 0.01, 0.62], euler_deg = [0, 30, 0] }
 # or a motion: keyframes (frame + pose) or a path file like the camera's
 # motion = { keyframes = [{ frame = 0, position = [0, 0, 0.6] }, { frame = 59, position = [0.01, 0, 0.6] }] }
 
+[environment]                # what fills the space in front of the scope (render's --smoke etc. replace it)
+smoke = 30                   # extinction coefficient, 1/m; also smoke_color, smoke_variation, smoke_scale, ...
+
 [[tracked_frames]]
 name = "lesion"
 attached_to = "tissue"       # or "<object>" or "<object>/<part>" (instrument parts: shaft, wrist, jaw_upper,
@@ -51,6 +54,8 @@ import numpy as np
 from pydantic import ConfigDict, Field, ValidationError, create_model
 
 from rgbd2scene.config_files import ConfigError, Strict, model_of, read_config_file, validation_error
+from rgbd2scene.environment.settings import EnvironmentOptions
+from rgbd2scene.options import OptionError
 from rgbd2scene.scene.deformation import PRESETS, Deformation
 from rgbd2scene.scene.model import MATERIALS, MAX_ID, TISSUE_ID
 from rgbd2scene.scene.objects.imported import MESH_SUFFIXES, rigid_pose
@@ -104,6 +109,7 @@ MeshModel = create_model(
     pose=(PoseModel | list[list[float]] | None, None), motion=(MeshMotionModel | None, None))
 DeformationModel = model_of(Deformation, "DeformationModel", _Strict, exclude=("kind",), optional=True,
                              preset=(Literal["none", *PRESETS] | None, None))
+EnvironmentModel = model_of(EnvironmentOptions, "EnvironmentModel", _Strict, optional=True)
 
 
 class TrackedFrameModel(OrientationModel):
@@ -118,6 +124,7 @@ class SceneConfigModel(_Strict):
     objects: list[Annotated[InstrumentModel | MeshModel, Field(discriminator="kind")]] = []
     tracked_frames: list[TrackedFrameModel] = []
     deformation: DeformationModel | None = None
+    environment: EnvironmentModel | None = None
 
 
 _TAGS = {"instrument": InstrumentModel, "mesh": MeshModel}
@@ -173,6 +180,7 @@ class SceneConfig:
     tracked_frames: list[FrameSpec] = field(default_factory=list)
     deformation_preset: str | None = None
     deformation_overrides: dict = field(default_factory=dict)
+    environment: dict = field(default_factory=dict)  # EnvironmentOptions fields the file sets
 
     def deformation(self, default_preset: str = "none", **fixed) -> Deformation | None:
         """The tissue's deformation: the file's preset (else ``default_preset``) with the file's overrides and
@@ -228,6 +236,12 @@ def parse_scene_config(data: dict, base_dir: Path, default_instrument: bool = Fa
         config.deformation_preset = overrides.pop("preset", None)
         config.deformation_overrides = overrides
         config.deformation(default_preset="breathing")  # checks the overrides' values
+    if model.environment is not None:
+        config.environment = model.environment.model_dump(exclude_none=True)
+        try:
+            EnvironmentOptions.from_dict(config.environment).validated()
+        except OptionError as exc:
+            raise ConfigError(f"environment.{exc.name}: {exc.message}") from None
     _check_ids(config)
     return config
 

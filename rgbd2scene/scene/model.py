@@ -37,17 +37,32 @@ MAX_ID = 65535
 
 @dataclass
 class Light:
-    """Light at the endoscope tip, rigidly attached to the left eye (offset in its OpenCV frame)."""
+    """Light at the endoscope tip, rigidly attached to the left eye (offset in its OpenCV frame).
+
+    ``outlets`` 2 splits ``power_w`` over two fibre outlets ``outlet_spacing`` apart along the camera's x axis,
+    centred on ``offset``: a stereo scope's light guides end beside its two lenses.
+    """
 
     kind: str = "spot"  # "spot" or "point"; inverse-square falloff either way
     power_w: float = 0.5
     spot_size_deg: float = 100.0
     offset: tuple[float, float, float] = (0.0025, 0.0, 0.0)  # between the eyes, at the tip
     radius: float = 0.0005
+    outlets: int = 1
+    outlet_spacing: float = 0.0
+
+    def outlet_offsets(self) -> list[tuple[float, float, float]]:
+        """Position of each outlet in the left eye's OpenCV frame (metres)."""
+        x, y, z = self.offset
+        if self.outlets == 1:
+            return [(x, y, z)]
+        half = 0.5 * self.outlet_spacing
+        return [(x - half, y, z), (x + half, y, z)]
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "power_w": self.power_w, "spot_size_deg": self.spot_size_deg,
-                "offset": list(self.offset), "radius": self.radius}
+                "offset": list(self.offset), "radius": self.radius, "outlets": self.outlets,
+                "outlet_spacing": self.outlet_spacing}
 
     @classmethod
     def from_dict(cls, d: dict) -> Light:
@@ -228,6 +243,8 @@ class SceneDescription:
     path: CameraPath
     light: Light = field(default_factory=Light)
     objects: list[SceneObject] = field(default_factory=lambda: [tissue_object()])
+    #: fields of :class:`rgbd2scene.environment.EnvironmentOptions` the scene sets (smoke, ...): RGB only
+    environment: dict = field(default_factory=dict)
 
     def __post_init__(self):
         ids = [p.id for o in self.objects for p in o.parts] + [t.id for o in self.objects for t in o.tracked_frames]
@@ -291,8 +308,11 @@ class SceneDescription:
         return {"objects": objects, "classes": self.classes(), "tracked_frames": frames}
 
     def to_dict(self) -> dict:
-        return {"model_version": 2, "rig": self.rig.to_dict(), "path": self.path.to_dict(),
-                "light": self.light.to_dict(), "objects": [o.to_dict() for o in self.objects]}
+        out = {"model_version": 2, "rig": self.rig.to_dict(), "path": self.path.to_dict(),
+               "light": self.light.to_dict(), "objects": [o.to_dict() for o in self.objects]}
+        if self.environment:
+            out["environment"] = dict(self.environment)
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> SceneDescription:
@@ -303,4 +323,4 @@ class SceneDescription:
         else:
             objects = [SceneObject.from_dict(o) for o in objects]
         return cls(StereoRig.from_dict(d["rig"]), CameraPath.from_dict(d["path"]),
-                   Light.from_dict(d.get("light", {})), objects)
+                   Light.from_dict(d.get("light", {})), objects, dict(d.get("environment") or {}))

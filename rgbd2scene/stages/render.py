@@ -19,12 +19,14 @@ from pathlib import Path
 
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.environment import EnvironmentOptions
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.files.atomic import ensure_output_dir, read_json_object
 from rgbd2scene.groundtruth.passes import parse_maps
 from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
 from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.sensor import SensorOptions
 from rgbd2scene.stages.blender import Event, Task, run_task
 from rgbd2scene.versions import software_versions
 
@@ -83,6 +85,10 @@ class RenderOptions:
                                    cli=False)
     view_culling: bool = option(True, "data renders sync only the triangles the frame's eyes see and their "
                                 "neighbours (the same passes, bit for bit; off: the whole scene)", cli=False)
+    sensor: SensorOptions = option(SensorOptions(), "the scope camera's exposure, sensor and optics effects "
+                                   "(RGB only)", resume=True)
+    environment: EnvironmentOptions = option(EnvironmentOptions(), "what fills the space in front of the scope "
+                                             "(RGB only)", resume=True)
 
     def validated(self) -> RenderOptions:
         """A normalised copy (map list, upper-case device, lower-case denoiser); :class:`OptionError` if bad."""
@@ -104,8 +110,15 @@ class RenderOptions:
             size = tuple(int(v) for v in self.size)
             if len(size) != 2 or min(size) <= 0:
                 raise OptionError("size", f"must be positive, got {'x'.join(map(str, size))}")
+        nested = {}
+        for name, cls in (("sensor", SensorOptions), ("environment", EnvironmentOptions)):
+            value = getattr(self, name)
+            try:
+                nested[name] = (cls.from_dict(value) if isinstance(value, dict) else value).validated()
+            except OptionError as exc:
+                raise OptionError(f"{name}.{exc.name}", exc.message) from None
         return replace(self, gt=",".join(maps) or "none", denoise=denoise, device=device, size=size,
-                       samples=int(self.samples), chunk=int(self.chunk), seed=int(self.seed))
+                       samples=int(self.samples), chunk=int(self.chunk), seed=int(self.seed), **nested)
 
     @property
     def maps(self) -> tuple[str, ...]:
@@ -182,7 +195,11 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
         "seed": options.seed,
         "conventions_version": CONVENTIONS_VERSION,
         "render": render,
-        "layout": {"rgb": "{eye}/rgb/{frame:06d}.png", "gt": "{eye}/gt/{frame:06d}.npz"},
+        "sensor": render["sensor"],
+        "environment": render["environment"],
+        "layout": {"rgb": "{eye}/rgb/{frame:06d}.png", "gt": "{eye}/gt/{frame:06d}.npz",
+                   "sensor": f"{ds.SENSOR_DIR}/{{frame:06d}}.json",
+                   **({"rgb_clean": f"{{eye}}/{ds.CLEAN_DIR}/{{frame:06d}}.png"} if options.sensor.clean else {})},
     }
 
 
@@ -195,6 +212,14 @@ def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path
     if diffs:
         raise UserError(f"{path}: this folder holds a dataset rendered with other settings "
                         f"({', '.join(diffs)}); choose another output folder or delete it")
+
+
+def scene_environment(options: RenderOptions, description: SceneDescription) -> RenderOptions:
+    """The render's environment: the scene's (its configuration file's ``[environment]``) unless the render
+    sets any environment option itself (``--smoke`` ...), which then replaces it whole."""
+    if options.environment != EnvironmentOptions().validated() or not description.environment:
+        return options
+    return replace(options, environment=EnvironmentOptions.from_dict(description.environment).validated())
 
 
 def render_model(description: SceneDescription, options: RenderOptions) -> SceneDescription:
@@ -268,6 +293,7 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
         raise UserError(f"{flag_of(RenderOptions, exc.name)}: {exc.message}") from None
 
     scene_dir, _record, description = load_scene(scene_dir, python)
+    options = scene_environment(options, description)
     path_frames = description.path.frames
     n = path_frames if options.frames is None else int(options.frames)
     if n < 1 or n > path_frames:

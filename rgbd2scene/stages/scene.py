@@ -37,6 +37,14 @@ from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SI
 from rgbd2scene.stages.blender import Task, run_task
 from rgbd2scene.stages.render import parse_size
 
+#: Scope light power, watts (both outlets): auto exposure then runs the light at full power with gain 1 at
+#: about 8 cm from the bundled sample's tissue, dims it nearer (a quarter at the default 4 cm standoff) and
+#: raises the gain farther (measured: benchmarks/bench_sensor.py). The 0.05 W before left a twin at 8 cm at
+#: 0.30 of the real frame's brightness.
+DEFAULT_LIGHT_W = 0.35
+#: How far outside each lens a fibre outlet ends (two-outlet light), metres.
+OUTLET_MARGIN_M = 0.0015
+
 
 def _scope_camera(path: str) -> Intrinsics:
     return load_camera_json(path)[0]
@@ -62,7 +70,9 @@ class SceneOptions:
                                 "mottling, small vessels, bumps; seeded by --seed; shading only, the ground truth "
                                 "does not change)", choices=("on", "off"))
     light: str = option("spot", "light at the tip", choices=("spot", "point"))
-    light_power_w: float = option(0.05, "light power, watts", flag="--light-power")
+    light_power_w: float = option(DEFAULT_LIGHT_W, "light power, watts (all outlets together)", flag="--light-power")
+    light_outlets: int = option(2, "fibre outlets at the tip: 1 (between the eyes) or 2 (beside the lenses, "
+                                "like a stereo scope's light guides)", choices=(1, 2))
     deform: str = option("none", "tissue motion: breathing, heartbeat (periodic displacement along the surface "
                          "normal) or none", choices=DEFORMATIONS)
     instrument: bool = option(False, "add the built-in instrument (shaft, wrist, two jaws) with its default motion "
@@ -126,7 +136,9 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
                              seed=options.seed, standoff=options.standoff, rc=rc)
         except ValueError as exc:
             raise UserError(f"path: {exc}") from None
-    light = Light(kind=options.light, power_w=options.light_power_w)
+    # centred between the eyes; two outlets sit OUTLET_MARGIN_M outside the lenses
+    light = Light(kind=options.light, power_w=options.light_power_w, offset=(rig.baseline / 2, 0.0, 0.0),
+                  outlets=options.light_outlets, outlet_spacing=rig.baseline + 2 * OUTLET_MARGIN_M)
     # only the wet-tissue material has the micro-structure: record what is built
     detail = TissueDetail(enabled=options.tissue_detail == "on" and options.material == "wet_tissue",
                           seed=options.seed)
@@ -139,7 +151,7 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
             tissue.parts[0].deformation = config.deformation(options.deform, centre=tuple(centre))
         except ConfigError as exc:
             raise _config_error(config, exc) from None
-    return SceneDescription(rig, path, light, [tissue])
+    return SceneDescription(rig, path, light, [tissue], environment=dict(config.environment))
 
 
 def _view_target(rc, path: CameraPath) -> np.ndarray:
