@@ -98,28 +98,53 @@ def _plain(value):
 
 def _options(command: str, values: dict, *classes):
     """One instance of each options dataclass in ``classes`` from the keywords ``values``, each keyword going to
-    the first class with a field of its name; :class:`TypeError` for a keyword no class has."""
+    the first class with a field of its name; :class:`TypeError` for a keyword no class has.
+
+    The fields of a nested record (a field whose default is an options dataclass, such as the render's sensor
+    settings) are keywords too, as they are flags on the command line; the record's own name takes a mapping.
+    """
     from rgbd2scene.options import from_mapping
 
-    owner: dict[str, type] = {}
+    owner: dict[str, tuple[type, str | None]] = {}
     for cls in classes:
-        for f in dataclasses.fields(cls):
-            owner.setdefault(f.name, cls)
+        for name, record in _keywords(cls).items():
+            owner.setdefault(name, (cls, record))
     unknown = [name for name in values if name not in owner]
     if unknown:
         raise TypeError(f"{command}() got an unexpected keyword argument {unknown[0]!r} (options: "
                         f"{', '.join(sorted(owner))})")
     out = []
     for cls in classes:
-        mine = {}
+        mine: dict[str, Any] = {}
+        nested: dict[str, dict] = {}
         for name, value in values.items():
-            if owner[name] is cls:
-                value = _plain(value)
-                if isinstance(value, str) and _takes_list(cls, name):
-                    value = [value]  # one file where several may be given
-                mine[name] = value
+            target, record = owner[name]
+            if target is not cls:
+                continue
+            value = _plain(value)
+            if record is not None:
+                nested.setdefault(record, {})[name] = value
+                continue
+            if isinstance(value, str) and _takes_list(cls, name):
+                value = [value]  # one file where several may be given
+            mine[name] = value
+        for record, flat in nested.items():
+            given = mine.get(record)
+            mine[record] = (flat if given is None else dataclasses.replace(given, **flat)
+                            if dataclasses.is_dataclass(given) else {**given, **flat})
         out.append(from_mapping(cls, mine))
     return tuple(out)
+
+
+def _keywords(cls) -> dict[str, str | None]:
+    """Keyword -> the nested record of ``cls`` that holds it (None: a field of ``cls`` itself)."""
+    out: dict[str, str | None] = {f.name: None for f in dataclasses.fields(cls)}
+    for f in dataclasses.fields(cls):
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        if dataclasses.is_dataclass(default):
+            for inner in dataclasses.fields(default):
+                out.setdefault(inner.name, f.name)
+    return out
 
 
 def _takes_list(cls, name: str) -> bool:

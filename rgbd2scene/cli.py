@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.options import OptionError
@@ -91,12 +92,13 @@ def cmd_scene(args) -> int:
     from rgbd2scene.options import from_args
     from rgbd2scene.stages.scene import SceneOptions
 
+    t0 = time.perf_counter()
     options = from_args(SceneOptions, args)
     result = run_scene(args.output, *_capture_options(args), options, args.mesh_dir)
     record, out = result.record, result.folder
     cov = record["coverage"]
     print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
-          f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {result.seconds:.1f}s -> "
+          f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {time.perf_counter() - t0:.1f}s -> "
           f"{out}/scene.blend")
     for item in record.get("objects", {}).get("instruments", []):
         print(f"instrument {item['name']!r} (ids {item['ids'][0]}-{item['ids'][-1]}): tip in both views in "

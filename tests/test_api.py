@@ -4,6 +4,7 @@ same files as the command line, keyword-named errors."""
 import json
 import subprocess
 import sys
+from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
@@ -11,7 +12,7 @@ import pytest
 from rgbd2scene import api
 from rgbd2scene.cli import main
 from rgbd2scene.errors import UserError
-from rgbd2scene.options import OptionError
+from rgbd2scene.options import OptionError, option
 from tests.conftest import BUNDLED_SAMPLE
 
 CAPTURE = {"rgb": BUNDLED_SAMPLE / "rgb.png", "depth": BUNDLED_SAMPLE / "depth.png",
@@ -174,3 +175,27 @@ def test_the_command_names_the_flag_of_the_same_error(tmp_path, capsys):
 def test_missing_files_are_user_errors(tmp_path):
     with pytest.raises(UserError, match="scene folder not found"):
         api.render(tmp_path / "nope", tmp_path / "d")
+
+
+@dataclass
+class _Sensor:
+    noise: bool = option(True, "no noise")
+    gain: float = option(1.0, "gain")
+
+
+@dataclass
+class _Stage:
+    samples: int = option(1, "samples")
+    sensor: _Sensor = field(default_factory=_Sensor)  # a nested record, as the render's sensor settings
+
+
+def test_a_nested_records_fields_are_keywords_as_they_are_flags():
+    (stage,) = api._options("toy", {"samples": 2, "noise": False, "gain": "2.5"}, _Stage)
+    assert stage == _Stage(samples=2, sensor=_Sensor(noise=False, gain=2.5))
+    (stage,) = api._options("toy", {"sensor": {"gain": 3.0}, "noise": False}, _Stage)  # the record's own name
+    assert stage.sensor == _Sensor(noise=False, gain=3.0)
+    with pytest.raises(TypeError, match="'nois'"):
+        api._options("toy", {"nois": False}, _Stage)
+    with pytest.raises(OptionError) as info:
+        api._options("toy", {"gain": "bright"}, _Stage)
+    assert info.value.name.startswith("sensor")  # the record (or its field, sensor.gain)
