@@ -1,20 +1,27 @@
 """The Python API a newcomer meets first: one call per command, with the command's options as keywords.
 
->>> from rgbd2scene import api
->>> api.scene("out/scene", rgb="rgb.png", depth="depth.png", camera="camera.json", frames=12)  # doctest: +SKIP
->>> api.render("out/scene", "out/dataset", size="128x64", frames=4)                          # doctest: +SKIP
->>> api.verify("out/dataset").ok                                                              # doctest: +SKIP
+Example::
 
-Each keyword is the name of the command's flag with underscores (``--depth-scale`` is ``depth_scale``,
-``--fov`` is ``fov_x_deg``, as in the batch configuration keys). The keywords of :func:`mesh`, :func:`scene`,
-:func:`render` and :func:`dataset` are the fields of the stages' options dataclasses (``CaptureOptions``,
-``MeshOptions``, ``SceneOptions``, ``RenderOptions``, ``BuildOptions``), so an option added there is a keyword
-here too; a value may be given as on the command line (``size="128x64"``) or typed (``size=(128, 64)``), a
-list of files as one path or several. ``progress`` stands for ``--quiet``.
+    from rgbd2scene import api
+
+    api.scene("out/scene", rgb="rgb.png", depth="depth.png", camera="camera.json", frames=12)
+    api.render("out/scene", "out/dataset", size="128x64", frames=4)
+    assert api.verify("out/dataset").ok
+
+Each keyword is the field behind the command's flag, as in a batch configuration: the flag with underscores
+(``--depth-scale`` is ``depth_scale``, ``--no-overview`` is ``overview=False``) or, where the flag is short, the
+field's full name (``--fov`` is ``fov_x_deg``, ``--light-power`` is ``light_power_w``). The keywords of
+:func:`mesh`, :func:`scene`, :func:`render` and :func:`dataset` are the fields of the stages' options
+dataclasses (``CaptureOptions``, ``MeshOptions``, ``SceneOptions``, ``RenderOptions``, ``BuildOptions``), so an
+option added there is a keyword here too; a value may be given as on the command line (``size="128x64"``) or
+typed (``size=(128, 64)``), a list of files as one path or several; the fields of a nested record (a field whose
+default is an options dataclass) are keywords as they are flags, or the record takes a mapping. ``progress``
+stands for ``--quiet``.
 
 An unknown keyword is a :class:`TypeError` naming it. A bad value raises what the command reports as
 ``error: ...``: an :class:`~rgbd2scene.options.OptionError` (a ValueError) whose message names the keyword, or
-a :class:`~rgbd2scene.errors.UserError` naming the file. The command line runs these same functions.
+a :class:`~rgbd2scene.errors.UserError` naming the file. The command line runs these same functions
+(:func:`run_mesh`, :func:`run_scene` and :func:`run_render` take the options as dataclasses, as it has them).
 
 The stage-level functions stay for finer control: :mod:`rgbd2scene.stages` (``load_inputs``,
 ``reconstruct_inputs``, ``write_mesh_folder``, ``build_scene_folder``, ``render_dataset``) and the packages
@@ -35,7 +42,7 @@ from typing import Any
 from rgbd2scene.options import OptionError
 
 __all__ = ["MeshResult", "RenderResult", "SceneResult", "dataset", "evaluate", "export", "export_ros", "mesh",
-           "realism", "render", "scene", "verify"]
+           "realism", "render", "run_mesh", "run_render", "run_scene", "scene", "verify"]
 
 PathLike = str | os.PathLike
 
