@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.options import OptionError
@@ -40,21 +39,13 @@ def _add_capture_args(p: argparse.ArgumentParser) -> None:
     add_arguments(p.add_argument_group("reconstruction"), MeshOptions)
 
 
-def _load(args):
-    """The capture of the arguments, read and checked (before anything is written)."""
-    from rgbd2scene.options import from_args
-    from rgbd2scene.stages.capture import CaptureOptions, load_inputs
-
-    return load_inputs(from_args(CaptureOptions, args))
-
-
-def _reconstruct(args, loaded):
-    """The reconstruction of a loaded capture: one RGB-D frame, several fused, or a stereo frame."""
+def _capture_options(args):
+    """The capture and reconstruction options of the arguments (``mesh`` and ``scene``)."""
     from rgbd2scene.options import from_args
     from rgbd2scene.reconstruct.pipeline import MeshOptions
-    from rgbd2scene.stages.capture import reconstruct_inputs
+    from rgbd2scene.stages.capture import CaptureOptions
 
-    return reconstruct_inputs(loaded, from_args(MeshOptions, args))
+    return from_args(CaptureOptions, args), from_args(MeshOptions, args)
 
 
 def _report(recon) -> str:
@@ -78,15 +69,11 @@ def _report(recon) -> str:
 
 
 def cmd_mesh(args) -> int:
-    from rgbd2scene.files.atomic import ensure_output_dir
-    from rgbd2scene.stages.mesh import write_mesh_folder
+    from rgbd2scene.api import run_mesh
 
-    t0 = time.perf_counter()
-    loaded = _load(args)
-    ensure_output_dir(args.output)
-    recon = _reconstruct(args, loaded)
-    write_mesh_folder(args.output, recon)
-    print(f"{_report(recon)}, total {time.perf_counter() - t0:.2f}s")
+    result = run_mesh(args.output, *_capture_options(args))
+    recon = result.reconstruction
+    print(f"{_report(recon)}, total {result.seconds:.2f}s")
     print(f"{len(recon.mesh.vertices)} vertices, {len(recon.mesh.triangles)} triangles -> {args.output}/mesh.ply")
     return 0
 
@@ -101,27 +88,14 @@ def _add_scene_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_scene(args) -> int:
-    from rgbd2scene.files.atomic import ensure_output_dir
+    from rgbd2scene.api import run_scene
     from rgbd2scene.options import from_args
-    from rgbd2scene.stages.capture import CaptureOptions
-    from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
-    from rgbd2scene.stages.scene import SceneOptions, build_scene_folder, load_mesh_folder, scene_config
+    from rgbd2scene.stages.scene import SceneOptions
 
     t0 = time.perf_counter()
     options = from_args(SceneOptions, args)
-    config = scene_config(options)  # a bad configuration or capture fails before anything is written
-    if not args.mesh_dir and not from_args(CaptureOptions, args).given():
-        raise UserError("scene: give a capture (--rgb and --depth, or --left, --right and --stereo-calib) or "
-                        "--mesh-dir (a mesh folder)")
-    loaded = None if args.mesh_dir else _load(args)
-    out = ensure_output_dir(args.output)
-    if loaded is None:
-        mesh, record = load_mesh_folder(args.mesh_dir, out)
-    else:
-        recon = _reconstruct(args, loaded)
-        write_mesh_folder(out, recon, finalize=False)
-        mesh, record = recon.mesh, scene_record(recon)
-    record = build_scene_folder(out, mesh, record, options, config=config)
+    result = run_scene(args.output, *_capture_options(args), options, args.mesh_dir)
+    record, out = result.record, result.folder
     cov = record["coverage"]
     print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
           f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {time.perf_counter() - t0:.1f}s -> "
@@ -134,29 +108,25 @@ def cmd_scene(args) -> int:
 
 
 def cmd_render(args) -> int:
+    from rgbd2scene.api import run_render
     from rgbd2scene.options import from_args
-    from rgbd2scene.stages.render import RenderOptions, render_dataset
+    from rgbd2scene.stages.render import RenderOptions
 
-    summary = render_dataset(args.scene, args.output, from_args(RenderOptions, args), progress=not args.quiet)
-    print(f"rendered {summary['rendered']} frames, skipped {summary['skipped']} already done -> {args.output}")
-    if not args.no_sheet:
-        from rgbd2scene.pictures.contact_sheet import write_frame_sheet
-
-        start, end = summary["range"]
-        sheet = write_frame_sheet(args.output, (start + end - 1) // 2, Path(args.output) / "contact_sheet.png")
-        print(f"contact sheet: {sheet}")
+    result = run_render(args.scene, args.output, from_args(RenderOptions, args), progress=not args.quiet,
+                        sheet=not args.no_sheet)
+    print(f"rendered {result.rendered} frames, skipped {result.skipped} already done -> {args.output}")
+    if result.sheet is not None:
+        print(f"contact sheet: {result.sheet}")
     return 0
 
 
 def cmd_verify(args) -> int:
-    from rgbd2scene.verify import format_report, verify_dataset
+    from rgbd2scene import api
+    from rgbd2scene.verify import format_report
 
-    report = verify_dataset(args.dataset, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
+    report = api.verify(args.dataset, mesh=args.mesh, json=args.json, error_maps=args.error_maps,
+                        progress=not args.quiet)
     print(format_report(report))
-    if args.json:
-        from rgbd2scene.files.atomic import write_json
-
-        write_json(args.json, report.to_dict())
     return 0 if report.ok else 1
 
 
@@ -170,68 +140,46 @@ def cmd_preview(args) -> int:
 
 
 def cmd_export_ros(args) -> int:
-    from rgbd2scene.dataset import Dataset
-    from rgbd2scene.export import RosOptions, export_ros
+    from rgbd2scene import api
 
-    try:
-        options = RosOptions(version=args.ros, rate=args.rate, start=args.start, prefix=args.prefix,
-                             world=args.world_frame, scope=args.scope_frame)
-    except ValueError as exc:
-        raise UserError(f"export-ros: {exc} (--ros, --rate, --start)") from None
-    summary = export_ros(Dataset(args.dataset), args.output, options, progress=not args.quiet)
+    summary = api.export_ros(args.dataset, args.output, ros=args.ros, rate=args.rate, start=args.start,
+                             prefix=args.prefix, world_frame=args.world_frame, scope_frame=args.scope_frame,
+                             progress=not args.quiet)
     print(f"ROS {args.ros} bag: {'; '.join(summary.notes)} -> {summary.out}")
     return 0
 
 
 def cmd_export(args) -> int:
-    from rgbd2scene.dataset import Dataset
-    from rgbd2scene.export import FORMATS
-    from rgbd2scene.files.atomic import ensure_output_dir
+    from rgbd2scene import api
 
-    dataset = Dataset(args.dataset)
-    out = ensure_output_dir(args.output)
-    summary = FORMATS[args.format](dataset, out, progress=not args.quiet)
-    print(f"{args.format}: {summary.frames} frames, {summary.files} files -> {out}")
+    summary = api.export(args.dataset, args.format, args.output, progress=not args.quiet)
+    print(f"{args.format}: {summary.frames} frames, {summary.files} files -> {summary.out}")
     for note in summary.notes:
         print(f"note: {note}")
     return 0
 
 
 def cmd_evaluate(args) -> int:
-    from rgbd2scene.evaluate import EvaluationOptions, evaluate
+    from rgbd2scene import api
     from rgbd2scene.evaluate.report import markdown_table
 
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip() and m.strip() != "none")
-    if not methods and not args.predictions:
-        raise UserError("evaluate: nothing to score (give --methods or --predictions)")
-    depth_range = None
-    if (args.min_depth is None) != (args.max_depth is None):
-        raise UserError("evaluate: give both --min-depth and --max-depth, or neither")
-    if args.min_depth is not None:
-        if not 0 < args.min_depth < args.max_depth:
-            raise UserError(f"evaluate: --min-depth {args.min_depth} and --max-depth {args.max_depth} must satisfy "
-                            f"0 < min < max (metres)")
-        depth_range = (args.min_depth, args.max_depth)
-    options = EvaluationOptions(methods=methods, predictions=tuple(args.predictions or ()), depth_range=depth_range,
-                                error_maps=not args.no_error_maps)
-    result = evaluate(args.dataset, args.output, options, progress=not args.quiet)
+    result = api.evaluate(args.dataset, args.output, methods=args.methods, predictions=args.predictions or (),
+                          min_depth=args.min_depth, max_depth=args.max_depth, error_maps=not args.no_error_maps,
+                          progress=not args.quiet)
     for split in dict.fromkeys(r.split for r in result.rows):
         print(f"\nsplit {split}: every valid ground-truth pixel (invalid predictions filled)")
         print(markdown_table([r for r in result.rows if r.split == split and r.scored == "all"]))
-    print(f"\nmetrics.csv, metrics.md, per_frame.csv{', error_maps/' if options.error_maps else ''} -> {result.out}")
+    print(f"\nmetrics.csv, metrics.md, per_frame.csv{'' if args.no_error_maps else ', error_maps/'} -> {result.out}")
     return 0
 
 
 def cmd_realism(args) -> int:
-    from rgbd2scene.realism import run_realism
+    from rgbd2scene import api
     from rgbd2scene.realism.report import markdown_table, summary_line
 
-    if len(args.real) > 2:
-        raise UserError(f"realism: --real takes the LEFT image and optionally the RIGHT one, got {len(args.real)}")
-    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip() and m.strip() != "none")
-    result = run_realism(args.dataset, args.real[0], args.real[1] if len(args.real) > 1 else None, out=args.output,
-                         frame=args.frame, mask=args.real_mask, real_disparity=args.real_disparity,
-                         real_calib=args.real_calib, methods=methods, surface_only=args.surface_only)
+    result = api.realism(args.dataset, args.real, args.output, real_disparity=args.real_disparity,
+                         real_mask=args.real_mask, real_calib=args.real_calib, surface_only=args.surface_only,
+                         frame=args.frame, methods=args.methods)
     print(markdown_table(result.report))
     print(f"\n{summary_line(result.report)}")
     for note in result.report.notes:
@@ -250,11 +198,10 @@ def cmd_dataset(args) -> int:
         return 0
     if not args.config or not args.output:
         raise UserError("dataset: give CONFIG and -o ROOT (or --status ROOT)")
-    from rgbd2scene.batch.run import BuildOptions, build_dataset
+    from rgbd2scene import api
 
-    options = BuildOptions(workers=args.workers, scheduler=args.scheduler, jobs=args.jobs,
-                           retry_failed=args.retry_failed, dashboard=args.dashboard, progress=not args.quiet)
-    summary = build_dataset(args.config, args.output, options)
+    summary = api.dataset(args.config, args.output, workers=args.workers, scheduler=args.scheduler, jobs=args.jobs,
+                          retry_failed=args.retry_failed, dashboard=args.dashboard, progress=not args.quiet)
     print(f"{summary.count('done')} done, {summary.count('failed')} failed, {summary.count('pending')} pending; "
           f"{summary.frames_rendered} frames rendered in {summary.seconds:.0f} s ({summary.engine}) -> "
           f"{summary.root}/manifest.csv, {summary.root}/index.html")

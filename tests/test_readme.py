@@ -19,3 +19,4 @@ def test_readme_python_api_example_runs(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:]
     assert "PASS" in result.stdout
     assert (tmp_path / "out" / "dataset" / "geometry" / "000003.npz").is_file()  # the tissue breathes
+    assert len(list((tmp_path / "out" / "kitti").rglob("*.png"))) >= 4  # the export ran
