@@ -2,7 +2,7 @@
 
 Methods (``FILL_METHODS``)
 --------------------------
-``inpaint``, ``colorization``, ``biharmonic``, ``background``: one solver of
+``inpaint``, ``colorization``, ``nyu_colorization``, ``biharmonic``, ``background``: one solver of
 :mod:`rgbd2scene.reconstruct.fill.solvers` for every interior hole; ``auto`` (the default) chooses per
 hole and per hole row (below); ``none`` fills nothing. Whatever the method, the same pixels are filled
 (:func:`rgbd2scene.reconstruct.fill.holes.classify_holes`): every hole pixel on the captured surface.
@@ -93,11 +93,12 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_colorization,
     fill_harmonic,
     fill_inpaint,
+    fill_nyu_colorization,
     fill_row_background,
     grey_levels,
 )
 
-FILL_METHODS = ("auto", "inpaint", "colorization", "biharmonic", "background", "none")
+FILL_METHODS = ("auto", "inpaint", "colorization", "nyu_colorization", "biharmonic", "background", "none")
 
 #: Kinect v1 focal length at 640 px width (PrimeSense default intrinsics): the default fx.
 KINECT_FX_640 = 525.0
@@ -198,6 +199,8 @@ def fill_depth(
         out = fill_inpaint(work, interior, radius=inpaint_radius, algorithm=inpaint_algorithm)
     elif method == "colorization":
         out = fill_colorization(work, rgb, interior)
+    elif method == "nyu_colorization":
+        out = fill_nyu_colorization(work, rgb, interior)
     elif method == "biharmonic":
         out = fill_biharmonic(work, interior)
     elif method == "background":
