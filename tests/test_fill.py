@@ -683,3 +683,15 @@ def test_nyu_colorization_leaves_other_invalid_pixels_out_and_keeps_unreachable_
     assert np.abs(out[hole] - truth[hole]).mean() < 0.005
     alone = np.full((H, W), np.nan, np.float32)
     assert np.isnan(fill_nyu_colorization(alone, rgb)).all()
+
+
+def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_ones_take():
+    noisy = smooth_surface() * (1 + 0.01 * np.random.default_rng(1).standard_normal((H, W))).astype(np.float32)
+    holes = blobs(5, n=6, r=4) | disc(60, 80, 12)
+    labels, n = components(holes)
+    wide = np.zeros(n + 1, bool)
+    wide[labels[60, 80]] = True
+    traits = HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool))
+    choice = choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), None, labels, traits)
+    assert NAMES[choice[labels[60, 80]]] == "biharmonic"
+    assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise

@@ -165,7 +165,7 @@ def fill_depth(
     step : relative depth difference across a hole that counts as a depth step.
     small_radius : ``auto`` averages the colour-guided fill in where a hole bridges a depth step or its
         inscribed disk is wider than this radius (px); default 2.5 % of the shorter side.
-    copies : ``auto`` chooses each hole's smooth fill on up to this many copies of it laid onto valid depth.
+    copies : ``auto`` chooses each hole's fill on up to this many copies of it laid onto valid depth.
     inpaint_radius, inpaint_algorithm : ``cv2.inpaint`` radius (px) and ``"ns"`` or ``"telea"``.
 
     Returns
@@ -395,9 +395,8 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     err, npx = _copy_errors(depth, rgb, labels, traits, guided, COPY_CLEARANCE, 1.0, copies)
     smooth_err, smooth_npx = err, npx
     if smooth.any() and not (smooth & (npx > 0)).any():
-        smooth_err, smooth_npx = _copy_errors(depth, None, np.where(smooth[labels], labels, 0), traits,
-                                              np.zeros_like(guided),
-                                              2, 0.6, copies)
+        narrow_only = np.where(smooth[labels], labels, 0)
+        smooth_err, smooth_npx = _copy_errors(depth, None, narrow_only, traits, np.zeros_like(guided), 2, 0.6, copies)
     pool = smooth & (smooth_npx > 0)
     if pool.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
         choice[smooth] = int((smooth_err[pool, :2] * smooth_npx[pool, None]).sum(axis=0).argmin())
