@@ -19,12 +19,13 @@ from rgbd2scene.reconstruct.fill import (
     fill_depth,
     fill_harmonic,
     fill_inpaint,
+    fill_nyu_colorization,
     fill_row_background,
     shadow_pixels,
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
-from rgbd2scene.reconstruct.fill.policy import choose_smooth_fill
+from rgbd2scene.reconstruct.fill.policy import NAMES, HoleTraits, choose_per_hole
 from rgbd2scene.reconstruct.fill.solvers import clip_to_rim
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
@@ -435,10 +436,11 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     curved = smooth_surface()
     mask = blobs(5, n=6, r=4)
     noisy = curved * (1 + 0.01 * np.random.default_rng(0).standard_normal((H, W))).astype(np.float32)
-    free = ~ndimage.binary_dilation(mask, iterations=2)
+    labels, n = components(mask)
+    narrow = HoleTraits(np.zeros(n + 1, bool), np.zeros(n + 1, bool), np.zeros(n + 1, bool))
     for depth, expected in ((curved, "biharmonic"), (noisy, "harmonic")):
         holed = np.where(mask, np.nan, depth).astype(np.float32)
-        assert choose_smooth_fill(holed, mask, free) == expected
+        assert {NAMES[k] for k in choose_per_hole(holed, None, labels, narrow)[1:]} == {expected}
         for sensor in (KINECT_V1, get_sensor("none")):
             res = fill_depth(holed, None, "auto", sensor=sensor, small_radius=6)  # all narrow
             assert res.stats["auto_pixels"] == {expected: int(mask.sum())}
@@ -446,7 +448,45 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     harmonic = fill_harmonic(np.where(mask, np.nan, curved))
     assert np.abs(res.depth[mask] - curved[mask]).mean() < 0.5 * np.abs(harmonic[mask] - curved[mask]).mean()
     # no room for a copy: the harmonic fill, as for a noisy sensor
-    assert choose_smooth_fill(np.where(mask, np.nan, curved), mask, np.zeros((H, W), bool)) == "harmonic"
+    crowded = np.where(mask | ~ndimage.binary_dilation(mask, iterations=5), np.nan, curved).astype(np.float32)
+    assert {NAMES[k] for k in choose_per_hole(crowded, None, labels, narrow)[1:]} == {"harmonic"}
+
+
+def _two_rooms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Left: a smooth dome painted with blotches that have nothing to do with its depth. Right: slats at
+    two depths, each slat its own colour (colour edges at the depth edges). A wide hole in each."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    dome = 0.8 + 2e-5 * ((v - 60) ** 2 + (u - 40) ** 2)
+    slat = (u // 9).astype(int) % 2 == 1
+    truth = np.where(u < 80, dome, np.where(slat, 1.0, 1.15)).astype(np.float32)
+    rng = np.random.default_rng(4)
+    blotches = ndimage.gaussian_filter(rng.random((H, W)), 3)
+    blotches = (blotches - blotches.min()) / np.ptp(blotches)
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[..., 1] = np.where(u < 80, 40 + 180 * blotches, np.where(slat, 200, 60)).astype(np.uint8)
+    rgb[..., 0] = np.where(u < 80, 120, np.where(slat, 180, 40)).astype(np.uint8)
+    rgb[..., 2] = 90
+    left, right = disc(60, 40, 11), disc(60, 122, 11)
+    return truth, rgb, left, right
+
+
+def test_each_wide_hole_takes_the_fill_its_own_copies_favour():
+    truth, rgb, left, right = _two_rooms()
+    holes = left | right
+    depth = np.where(holes, np.nan, truth).astype(np.float32)
+    labels, n = components(holes)
+    wide = np.ones(n + 1, bool)
+    wide[0] = False
+    choice = choose_per_hole(depth, rgb, labels, HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool)))
+    on_left, on_right = NAMES[choice[labels[60, 40]]], NAMES[choice[labels[60, 122]]]
+    assert on_left == "biharmonic", on_left  # the blotches would mislead colour guidance
+    assert "colorization" in on_right and on_right != "nyu_colorization+biharmonic", on_right
+    res = fill_depth(depth, rgb, "auto", sensor=SENSORS["none"])
+    error = lambda d, m: np.abs(d[m] - truth[m]).mean()  # noqa: E731
+    for single in (fill_biharmonic(depth), fill_nyu_colorization(depth, rgb)):
+        assert error(res.depth, holes) < 0.8 * error(single, holes)
+    assert error(res.depth, left) < 0.5 * error(fill_nyu_colorization(depth, rgb), left)
+    assert error(res.depth, right) < 0.5 * error(fill_biharmonic(depth), right)
 
 
 def test_thin_strip_on_the_rim_of_a_hole_beyond_range_is_filled():
@@ -555,3 +595,103 @@ def test_clip_to_rim_bounds_the_thin_plate_across_a_step_but_not_on_a_dome():
     res = fill_depth(np.where(top, np.nan, dome).astype(np.float32), None, "auto")
     assert res.depth[top].min() < dome[~top].min() - 0.005
     assert np.abs(res.depth[top] - dome[top]).max() < 0.002
+
+
+def toolbox_fill_dense(rgb01: np.ndarray, depth: np.ndarray, alpha: float = 1.0) -> np.ndarray:
+    """``fill_depth_colorization`` of the NYU Depth v2 toolbox transcribed loop by loop (MATLAB's order),
+    with the dense system solved directly: the independent reference for ``fill_nyu_colorization``."""
+    h, w = depth.shape
+    grey = rgb01[..., :3] @ np.array([0.2989, 0.5870, 0.1140])
+    known = np.isfinite(depth)
+    scale = depth[known].max()
+    d = np.where(known, depth / scale, 0.0)
+    n = h * w
+    a = np.zeros((n, n))
+    ind = np.arange(n).reshape(w, h).T  # column-major pixel numbers, as indsM in MATLAB
+    for j in range(w):
+        for i in range(h):
+            me = ind[i, j]
+            nbrs, gvals = [], []
+            for ii in range(max(0, i - 1), min(i + 2, h)):
+                for jj in range(max(0, j - 1), min(j + 2, w)):
+                    if (ii, jj) != (i, j):
+                        nbrs.append(ind[ii, jj])
+                        gvals.append(grey[ii, jj])
+            g = np.array(gvals + [grey[i, j]])
+            c_var = np.mean((g - g.mean()) ** 2)
+            csig = c_var * 0.6
+            mgv = np.min((g[:-1] - grey[i, j]) ** 2)
+            csig = max(csig, -mgv / np.log(0.01), 0.000002)
+            wts = np.exp(-((g[:-1] - grey[i, j]) ** 2) / csig)
+            a[me, nbrs] = -wts / wts.sum()
+            a[me, me] = 1.0
+    vals = known.T.ravel() * alpha
+    x = np.linalg.solve(a + np.diag(vals), vals * d.T.ravel())
+    return x.reshape(w, h).T * scale
+
+
+def test_nyu_colorization_equals_a_dense_solve_of_the_toolbox_system():
+    rng = np.random.default_rng(5)
+    h, w = 12, 15
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    truth = 1.0 + 0.03 * u + 0.02 * np.sin(v) + (u > 7) * 0.4
+    rgb = np.clip(rng.normal(0.5, 0.15, (h, w, 3)) + (u > 7)[..., None] * 0.3, 0, 1)
+    rgb8 = np.round(rgb * 255).astype(np.uint8)
+    depth = truth.copy()
+    holes = rng.random((h, w)) < 0.25
+    holes[3:8, 5:11] = True
+    depth[holes] = np.nan
+    ref = toolbox_fill_dense(rgb8 / 255.0, depth)
+    out = fill_nyu_colorization(depth.astype(np.float32), rgb8)
+    np.testing.assert_allclose(out[holes], ref[holes], rtol=2e-6)
+    assert np.array_equal(out[~holes], depth[~holes].astype(np.float32))
+    # the soft data term moves the known pixels in the toolbox's solution: a solve with them fixed differs
+    assert np.abs(ref[~holes] - depth[~holes]).max() > 1e-3
+    assert np.abs(fill_colorization(depth.astype(np.float32), rgb8)[holes] - ref[holes]).max() > 1e-3
+
+
+def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harmonic():
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    left = u < 80
+    truth = np.where(left, 1.0 + 0.002 * u + 0.001 * v, 1.8 - 0.001 * u + 0.0015 * v).astype(np.float32)
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[left] = (40, 90, 150)
+    rgb[~left] = (200, 170, 60)
+    rng = np.random.default_rng(2)
+    rgb = np.clip(rgb + rng.integers(-6, 7, rgb.shape), 0, 255).astype(np.uint8)  # some sensor noise
+    hole = (np.abs(u - 80) < 20) & (np.abs(v - 60) < 25)
+    depth = truth.copy()
+    depth[hole] = np.nan
+    nyu = fill_nyu_colorization(depth, rgb)
+    harm = fill_harmonic(depth)
+    for side in (hole & left, hole & ~left):
+        e_nyu = np.abs(nyu[side] - truth[side]).mean()
+        e_harm = np.abs(harm[side] - truth[side]).mean()
+        assert e_nyu < 0.5 * e_harm, (e_nyu, e_harm)
+
+
+def test_nyu_colorization_leaves_other_invalid_pixels_out_and_keeps_unreachable_holes_empty():
+    truth = smooth_surface()
+    rgb = texture_rgb(truth)
+    depth = truth.copy()
+    outside = np.zeros((H, W), bool)
+    outside[:, :30] = True  # no surface there: not filled, not in the system
+    hole = disc(60, 90, 10)
+    depth[outside | hole] = np.nan
+    out = fill_nyu_colorization(depth, rgb, hole)
+    assert np.isnan(out[outside]).all() and np.isfinite(out[hole]).all()
+    assert np.abs(out[hole] - truth[hole]).mean() < 0.005
+    alone = np.full((H, W), np.nan, np.float32)
+    assert np.isnan(fill_nyu_colorization(alone, rgb)).all()
+
+
+def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_ones_take():
+    noisy = smooth_surface() * (1 + 0.01 * np.random.default_rng(1).standard_normal((H, W))).astype(np.float32)
+    holes = blobs(5, n=6, r=4) | disc(60, 80, 12)
+    labels, n = components(holes)
+    wide = np.zeros(n + 1, bool)
+    wide[labels[60, 80]] = True
+    traits = HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool))
+    choice = choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), None, labels, traits)
+    assert NAMES[choice[labels[60, 80]]] == "biharmonic"
+    assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise

@@ -14,9 +14,10 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_colorization,
     fill_harmonic,
     fill_inpaint,
+    fill_nyu_colorization,
     fill_row_background,
 )
 
 __all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "clip_to_rim", "fill_background",
            "fill_biharmonic", "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint",
-           "fill_row_background", "highlight_pixels", "shadow_pixels", "step_runs"]
+           "fill_nyu_colorization", "fill_row_background", "highlight_pixels", "shadow_pixels", "step_runs"]

@@ -2,7 +2,7 @@
 
 Methods (``FILL_METHODS``)
 --------------------------
-``inpaint``, ``colorization``, ``biharmonic``, ``background``: one solver of
+``inpaint``, ``colorization``, ``nyu_colorization``, ``biharmonic``, ``background``: one solver of
 :mod:`rgbd2scene.reconstruct.fill.solvers` for every interior hole; ``auto`` (the default) chooses per
 hole and per hole row (below); ``none`` fills nothing. Whatever the method, the same pixels are filled
 (:func:`rgbd2scene.reconstruct.fill.holes.classify_holes`): every hole pixel on the captured surface.
@@ -28,42 +28,50 @@ What ``auto`` does
    for shadows, and lost more there than it gained). On the simulated shadows of the benchmark the
    row fill is twice as accurate as a smooth fill from the far side (harmonic, ``background``).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
-   2.5 % of the shorter side): the mean of the colorization and the biharmonic fills (biharmonic alone
-   without RGB), the biharmonic one clipped to the hole's rim depth range where the hole bridges a step
-   (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a thin plate across a depth step overshoots
-   beyond both sides, while on a smooth dome its curvature is the surface's (tuning split: geometric mean
-   over its rows 1.065 -> 1.053, its captures with the colour removed 1.174 -> 1.098; rows above 1.10
-   8 -> 8 and 5 -> 4). Neither fill wins everywhere (colour edges follow depth edges in rooms, not on
-   textured or specular tissue), and a self-validation on copies of the holes could not tell them apart
-   (3. below). On the benchmark's tuning split their mean was within 3 % of the better of the two, or
-   better, on every family but two: specular highlights and the bundled sample's own shadows. Highlights
-   are therefore not guided by colour: a hole at least half of whose pixels are bright, unsaturated and
-   brighter than the surface around it (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets
-   the smooth fill of 3. below, whatever its width. Its colour is the light's, not the surface's, and a
-   uniform white patch matches whatever white surface lies next to it (the TUM frame's desk: tuning row
-   3.31 -> 1.18 times the best plain solver, no other tuning row changed). Brighter than its rim, and not
-   merely bright: a hole in a white wall is as bright as the wall around it, and colour helps there (a
-   rule on brightness alone took the Redwood frames' walls for highlights).
+   2.5 % of the shorter side), highlights excepted, chosen per hole by evidence from the capture
+   (:func:`choose_per_hole`): copies of the hole's own shape are laid onto valid depth nearby (each
+   wholly on pixels at least :data:`COPY_CLEARANCE` px from any invalid one, so that a copy is enclosed
+   by valid depth as the hole is; :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`), filled with
+   each candidate of :data:`GUIDED` (all copies of all holes at once: one solve per base fill), and the
+   hole takes the candidate with the least mean absolute error on its own copies: the mean of the NYU
+   toolbox's colorization (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the
+   known pixels within :data:`NYU_REACH` px of the holes) and the biharmonic fill, the biharmonic fill,
+   or the NYU colorization. The mean is also the rule where no copy fits (a large hole seldom has room
+   for a whole copy) and wins ties. The biharmonic fill is clipped to the hole's rim depth range where
+   the hole bridges a step (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a thin plate
+   across a depth step overshoots beyond both sides, while on a smooth dome its curvature is the
+   surface's. Without RGB: the biharmonic fill. On the benchmark's tuning split (auto's all-pixel MAE
+   over the best of biharmonic, harmonic, NYU colorization and the project's colorization, geometric
+   mean over its rows) this step with the previous rule (the project's colorization averaged with the
+   biharmonic fill, for every such hole): 0.795, 7 of 23 rows above 1.10; with the NYU colorization in
+   the mean: 0.785, 4 rows; with the per-hole choice on the copies: 0.787, 3 rows. The evidence is
+   about neutral there; it is kept because it decides from the capture itself rather than from rules
+   tuned on two captures. Copies that may lie 40 % on pixels next to other holes (the earlier
+   ``hole_copies`` setting), choosing every hole's fill among six candidates, gave 0.875, 11 rows: such
+   a copy is half an extrapolation, where the membrane wins, not an enclosed hole (a wide ellipse on the
+   tissue sample: 1.70 times the best reference against 1.00). Highlights are not guided by colour: a hole at least
+   half of whose pixels are bright, unsaturated and brighter than the surface around it
+   (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets the smooth fill of 3. below,
+   whatever its width. Its colour is the light's, not the surface's, and a uniform white patch matches
+   whatever white surface lies next to it (the TUM frame's desk: tuning row 3.31 -> 1.18 times the
+   best plain solver). Brighter than its rim, and not merely bright: a hole in a white wall is as
+   bright as the wall around it, and colour helps there (a rule on brightness alone took the Redwood
+   frames' walls for highlights).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had
-   the smaller error on copies of these holes laid onto valid depth nearby (:func:`choose_smooth_fill`,
-   :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`: each hole shifted by its own size, up to
-   ``copies`` times, where the copy lands on valid depth away from other holes). Harmonic averages a
-   sensor's noise; biharmonic is exact on smooth noise-free depth (depth from CT or a renderer), so the
-   depth itself decides rather than the sensor setting. The choice is made once per image, on the
-   copies of all narrow holes pooled: noise is the sensor's, the same across the image, and choosing
-   per hole (each hole's error pulled towards the image's by 200 px' worth) did worse on the tuning
-   split. On the tuning split the choice is about neutral (geometric mean over its rows 1.114 against
-   1.118 with harmonic always); it is meant for noise-free depth, which that split lacks. Without a
-   copy that fits, harmonic (the earlier rule). Tried and not used: choosing among colorization,
-   biharmonic, harmonic and their mean per hole on such copies (tuning split 1.30 against 1.12: a copy
-   sees neither the hole's colour, e.g. a highlight's, nor what made the hole: holes sit at depth edges
-   and on dark or glancing surfaces, copies on plain surface; and it doubled the time); and dropping
-   the colour guidance for holes whose pixels are merely bright and unsaturated: on the report run
-   it also took the white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12),
-   hence the test against the hole's rim in 2.
-``FillResult.method`` names what was used, e.g. ``"auto: background+colorization+biharmonic+harmonic"``
-(``FillResult.stats["auto_pixels"]``: how many pixels each filled; colorization counts the pixels it was
-averaged into).
+   the smaller error on the copies of all these holes pooled (whole copies as in 2.; where none fits,
+   copies lying 60 % on pixels 2 px from any invalid one: a thin ring round a hole beyond range has
+   no room for a whole copy; harmonic where none fits at all). Harmonic averages a sensor's noise;
+   biharmonic is exact on smooth noise-free depth (depth from CT or a renderer), so the depth itself
+   decides rather than the sensor setting. The choice is made once per image: noise is the sensor's,
+   the same across the image, and choosing per hole did worse on the tuning split (its captures with
+   the colour removed: 0.726 pooled against 0.731 per hole; earlier, with each hole's error pulled
+   towards the image's by 200 px' worth, also worse). Tried and not used: dropping the colour
+   guidance for holes whose pixels are merely bright and unsaturated: on a report run it also took the
+   white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12), hence the test against
+   the hole's rim in 2.
+``FillResult.method`` names the base fills used, e.g. ``"auto: background+biharmonic+nyu_colorization"``
+(``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two
+counts for both).
 """
 
 from __future__ import annotations
@@ -93,11 +101,12 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_colorization,
     fill_harmonic,
     fill_inpaint,
+    fill_nyu_colorization,
     fill_row_background,
     grey_levels,
 )
 
-FILL_METHODS = ("auto", "inpaint", "colorization", "biharmonic", "background", "none")
+FILL_METHODS = ("auto", "inpaint", "colorization", "nyu_colorization", "biharmonic", "background", "none")
 
 #: Kinect v1 focal length at 640 px width (PrimeSense default intrinsics): the default fx.
 KINECT_FX_640 = 525.0
@@ -156,7 +165,7 @@ def fill_depth(
     step : relative depth difference across a hole that counts as a depth step.
     small_radius : ``auto`` averages the colour-guided fill in where a hole bridges a depth step or its
         inscribed disk is wider than this radius (px); default 2.5 % of the shorter side.
-    copies : ``auto`` chooses each hole's smooth fill on up to this many copies of it laid onto valid depth.
+    copies : ``auto`` chooses each hole's fill on up to this many copies of it laid onto valid depth.
     inpaint_radius, inpaint_algorithm : ``cv2.inpaint`` radius (px) and ``"ns"`` or ``"telea"``.
 
     Returns
@@ -198,6 +207,8 @@ def fill_depth(
         out = fill_inpaint(work, interior, radius=inpaint_radius, algorithm=inpaint_algorithm)
     elif method == "colorization":
         out = fill_colorization(work, rgb, interior)
+    elif method == "nyu_colorization":
+        out = fill_nyu_colorization(work, rgb, interior)
     elif method == "biharmonic":
         out = fill_biharmonic(work, interior)
     elif method == "background":
@@ -232,13 +243,10 @@ def fill_depth(
 
 
 def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
-    """``auto`` (module docstring): shadow rows (the band's too) -> their far end; holes with a depth
-    step or wider than ``small_radius``, highlights excepted -> the mean of the colorization and
-    biharmonic fills (biharmonic alone without RGB; clipped to the rim's depth range across a step);
-    narrow step-free holes and highlights -> the smooth fill that did best on copies of them laid onto
-    valid depth nearby. The rest of the band is left to the caller.
+    """``auto`` (module docstring): shadow rows (the band's too) -> their far end; every other interior
+    hole -> the fill :func:`choose_per_hole` picks for it. The rest of the band is left to the caller.
 
-    Returns the filled depth and the number of pixels each method filled.
+    Returns the filled depth and the number of pixels each fill filled.
     """
     out = work.copy()
     counts: dict[str, int] = {}
@@ -247,72 +255,152 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     if shadow.any():
         out[shadow] = fill_row_background(work, shadow)[shadow]
         counts["background"] = int(shadow.sum())
-    interior = todo & ~band
-    rest = interior & ~shadow
-    labels, n = components(interior)
+    rest = todo & ~band & ~shadow
+    if not rest.any():
+        return out, counts
+    labels, n = components(rest)
     stepped = np.zeros(n + 1, dtype=bool)
-    stepped[labels[runs.pixels(work.shape)]] = True
+    stepped[labels[runs.pixels(work.shape) & rest]] = True
     stepped[0] = False
     wide = stepped.copy()
-    inscribed = cv2.distanceTransform(interior.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    inscribed = cv2.distanceTransform(rest.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     wide[labels[inscribed > small_radius]] = True
-    if rgb is not None:  # a highlight's colour says nothing of its depth: the smooth fill, as for narrow holes
+    lit = np.zeros(n + 1, dtype=bool)
+    if rgb is not None:
         shine = highlight_pixels(rgb, ~valid_depth(work))
         pixels = np.bincount(labels.ravel(), minlength=n + 1)
-        wide &= 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) < pixels
-    guided = wide[labels] & rest
-    small = rest & ~guided
-    if guided.any():
-        fill = fill_biharmonic(out, guided)
-        across = guided & stepped[labels]  # a thin plate overshoots across a step, not on a smooth dome
-        if across.any():
-            fill = clip_to_rim(fill, out, across)
-        if rgb is not None:  # their mean: neither wins on every hole, and their errors partly cancel
-            guide = fill_colorization(out, rgb, guided)
-            both = guided & np.isfinite(guide) & np.isfinite(fill)
-            fill[both] = 0.5 * (fill[both] + guide[both])
-            counts["colorization"] = int(both.sum())
-        out[guided] = fill[guided]
-        counts["biharmonic"] = int(guided.sum())
-    if small.any():
-        valid = valid_depth(work)
-        name = choose_smooth_fill(out, small, valid & ~ndi.binary_dilation(~valid, iterations=2), copies)
-        out[small] = SMOOTH_FILLS[name](out, small)[small]
-        counts[name] = counts.get(name, 0) + int(small.sum())
+        lit = 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) >= pixels
+        lit[0] = False
+    choice = choose_per_hole(out, rgb, labels, HoleTraits(stepped, wide, lit), copies)
+    per_pixel = choice[labels]
+    chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
+    needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
+    fills = _base_fills(out, rgb, rest, stepped[labels] & rest, needed)
+    for k in chosen:
+        sel = rest & (per_pixel == k)
+        out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
+        for b in CANDIDATES[NAMES[k]]:
+            counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts
 
 
-#: The smooth fills ``auto`` chooses between for narrow holes: most robust to noise (the choice where
-#: no copy can be laid), or exact on planes.
-SMOOTH_FILLS = {"harmonic": fill_harmonic, "biharmonic": fill_biharmonic}
+#: What ``auto`` chooses from per hole: one base fill, or the mean of two (:func:`choose_per_hole`).
+CANDIDATES: dict[str, tuple[str, ...]] = {
+    "harmonic": ("harmonic",),
+    "biharmonic": ("biharmonic",),
+    "nyu_colorization+biharmonic": ("nyu_colorization", "biharmonic"),
+    "nyu_colorization": ("nyu_colorization",),
+}
+NAMES = list(CANDIDATES)
+#: The candidates a colour-guided hole may take on its copies' evidence (the rule's choice first).
+GUIDED = ("nyu_colorization+biharmonic", "biharmonic", "nyu_colorization")
+#: ``auto``'s NYU colorization graph: the known pixels within this many px of the holes (its docstring).
+NYU_REACH = 16
+#: Copies lie this many px away from any invalid pixel: a copy must be enclosed by valid depth, as the hole is.
+COPY_CLEARANCE = 6
 
 
-def choose_smooth_fill(depth: np.ndarray, holes: np.ndarray, free: np.ndarray, copies: int = 3) -> str:
-    """Which of :data:`SMOOTH_FILLS` had the least mean absolute depth error on copies of the holes laid
-    onto valid depth nearby (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`); the first where no
-    copy fits.
+@dataclass
+class HoleTraits:
+    """Per hole label (index 0: no hole): bridges a depth step; wider than ``small_radius`` or stepped;
+    a specular highlight."""
+
+    stepped: np.ndarray
+    wide: np.ndarray
+    lit: np.ndarray
+
+
+def _base_fills(depth, rgb, mask, across, names) -> dict[str, np.ndarray]:
+    """Each named base fill of ``mask`` (one solve each); the biharmonic one clipped to the rim's depth
+    range on ``across`` (a thin plate overshoots across a depth step)."""
+    fills = {}
+    for name in names:
+        if name == "harmonic":
+            fills[name] = fill_harmonic(depth, mask)
+        elif name == "biharmonic":
+            f = fill_biharmonic(depth, mask)
+            fills[name] = clip_to_rim(f, depth, across) if across.any() else f
+        else:
+            fills[name] = fill_nyu_colorization(depth, rgb, mask, rtol=1e-7, reach=NYU_REACH)
+    return fills
+
+
+def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int, coverage: float, copies: int):
+    """Mean absolute error of each candidate on each hole's copies (inf where not tried) and the copies'
+    pixel count per hole; the colour-guided fills only on copies of ``guided`` holes."""
+    n = traits.wide.size - 1
+    valid = valid_depth(depth)
+    free = valid & ~ndi.binary_dilation(~valid, iterations=clearance)
+    source = hole_copies(labels, free, copies, coverage=coverage)
+    test = source >= 0
+    err = np.full((n + 1, len(NAMES)), np.inf)
+    if not test.any():
+        return err, np.zeros(n + 1)
+    owner = labels.ravel()[source[test]]
+    trial = np.where(test, np.nan, depth).astype(np.float32)
+    truth = depth[test].astype(np.float64)
+    miss = np.abs(truth - float(np.nanmedian(depth)))  # the error of a copy pixel left unfilled
+    across = np.zeros(labels.shape, dtype=bool)
+    across[test] = traits.stepped[owner]
+    at = np.zeros(labels.shape, dtype=bool)
+    at[test] = guided[owner]
+    fills = _base_fills(trial, rgb, test, across, ("harmonic", "biharmonic"))
+    if at.any():
+        fills.update(_base_fills(trial, rgb, at, across & at, ("nyu_colorization",)))
+    npx = np.bincount(owner, minlength=n + 1).astype(np.float64)
+    for k, name in enumerate(NAMES):
+        if any(b not in fills for b in CANDIDATES[name]):
+            continue
+        est = np.mean([fills[b][test] for b in CANDIDATES[name]], axis=0)
+        e = np.where(np.isfinite(est), np.abs(est - truth), miss)
+        err[:, k] = np.bincount(owner, weights=e, minlength=n + 1) / np.maximum(npx, 1.0)
+    return err, npx
+
+
+def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, traits: HoleTraits,
+                    copies: int = 3) -> np.ndarray:
+    """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
+
+    Copies of each hole are laid onto valid depth nearby, each wholly on pixels at least
+    :data:`COPY_CLEARANCE` px from any invalid one (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`),
+    and filled with the candidates: all copies at once, one solve per base fill. Narrow holes and
+    highlights take the smooth fill (harmonic or biharmonic) with the least error over all their copies
+    pooled; where none of them has a whole copy, over copies that lie 60 % on pixels 2 px from any
+    invalid one (a thin ring round a hole beyond range has no room for a whole copy); harmonic where
+    none fits at all. A colour-guided hole (wide or across a step, not a highlight, with RGB) takes the
+    candidate of :data:`GUIDED` with the least mean absolute error on its own copies, the mean of the
+    NYU colorization and the biharmonic fills where no copy fits or on a tie; without RGB, the
+    biharmonic fill.
 
     Parameters
     ----------
     depth : float (H, W) metres, NaN = invalid.
-    holes : bool (H, W) the holes whose shapes are copied (each 8-connected component is one hole).
-    free : bool (H, W) valid pixels the copies may hide.
+    rgb : uint8 (H, W, 3) or None.
+    labels : int (H, W) the holes (0 = none), one label per hole.
+    traits : per label.
     copies : copies per hole.
 
     Returns
     -------
-    str: a key of :data:`SMOOTH_FILLS`.
+    int (n + 1,): an index of :data:`NAMES` per label (index 0 unused).
     """
-    labels, _ = components(holes)
-    source = hole_copies(labels, free, copies)
-    test = source >= 0
-    if not test.any():
-        return next(iter(SMOOTH_FILLS))
-    trial = np.where(test, np.nan, depth).astype(np.float32)
-    truth = depth[test].astype(np.float64)
-    miss = np.abs(truth - float(np.nanmedian(depth)))  # the error of a copy pixel left unfilled
-    errors = {}
-    for name, fill in SMOOTH_FILLS.items():
-        e = np.abs(fill(trial, test)[test] - truth)
-        errors[name] = float(np.where(np.isfinite(e), e, miss).mean())
-    return min(errors, key=errors.get)
+    n = traits.wide.size - 1
+    smooth = ~traits.wide | traits.lit
+    smooth[0] = False
+    guided = ~smooth & (rgb is not None)
+    guided[0] = False
+    choice = np.full(n + 1, NAMES.index("harmonic"))
+    choice[guided] = NAMES.index(GUIDED[0])
+    choice[traits.wide & (rgb is None)] = NAMES.index("biharmonic")
+    err, npx = _copy_errors(depth, rgb, labels, traits, guided, COPY_CLEARANCE, 1.0, copies)
+    smooth_err, smooth_npx = err, npx
+    if smooth.any() and not (smooth & (npx > 0)).any():
+        narrow_only = np.where(smooth[labels], labels, 0)
+        smooth_err, smooth_npx = _copy_errors(depth, None, narrow_only, traits, np.zeros_like(guided), 2, 0.6, copies)
+    pool = smooth & (smooth_npx > 0)
+    if pool.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
+        choice[smooth] = int((smooth_err[pool, :2] * smooth_npx[pool, None]).sum(axis=0).argmin())
+    ways = [NAMES.index(name) for name in GUIDED]
+    own = guided & (npx > 0) & np.isfinite(err[:, ways[0]])
+    choice[own] = np.asarray(ways)[err[np.ix_(own, ways)].argmin(axis=1)]  # argmin keeps the first on a tie
+    return choice

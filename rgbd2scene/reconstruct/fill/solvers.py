@@ -2,12 +2,14 @@
 
 Each takes the depth, optionally a mask of the pixels to fill (default every invalid pixel; other
 invalid pixels are neither used nor filled), and returns a float32 copy with the mask pixels filled
-where a solution exists (a mask region touching no valid pixel stays NaN). Every fill works on inverse
-depth, where a plane is affine in pixel coordinates, and never changes a valid pixel.
+where a solution exists (a mask region touching no valid pixel stays NaN). Every fill but the NYU
+toolbox's works on inverse depth, where a plane is affine in pixel coordinates; none changes a valid pixel.
 
 ``fill_inpaint``          ``cv2.inpaint`` (Navier-Stokes) on normalised inverse depth: the fast fallback.
-``fill_colorization``     Levin et al. colour-guided fill as in the NYU Depth v2 toolbox
-                          (``fill_depth_colorization``), solved for the hole pixels only.
+``fill_colorization``     Levin et al. colour-guided fill after the NYU Depth v2 toolbox's affinities,
+                          solved for the hole pixels only (valid pixels kept as hard constraints).
+``fill_nyu_colorization`` the NYU Depth v2 toolbox's ``fill_depth_colorization`` itself: the whole image,
+                          known pixels as a soft data term, one sparse solve, in depth (not inverse depth).
 ``fill_biharmonic``       thin-plate (biharmonic) fill: smooth, exact on planes.
 ``clip_to_rim``           each hole's fill bounded by its rim's depth range (a thin plate overshoots at steps).
 ``fill_harmonic``         membrane (Laplace) fill: smoothest, most robust to boundary noise.
@@ -22,7 +24,7 @@ import cv2
 import numpy as np
 from scipy import ndimage as ndi
 from scipy import sparse
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import LinearOperator, gmres, splu, spsolve
 
 from rgbd2scene.reconstruct.fill.holes import near_exclusion, near_side, reachable, row_runs, run_cells, valid_depth
 
@@ -258,6 +260,159 @@ def fill_colorization(
     if grey is None:
         grey = np.zeros(depth.shape)
     return _smooth_fill(depth, mask, _colorization_solver(grey, win_rad), exclude, eight=win_rad > 0)
+
+
+_OFFSETS8 = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
+
+
+def nyu_affinities(grey: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """The affinities of ``fill_depth_colorization`` (NYU Depth v2 toolbox, after Levin et al.).
+
+    For each pixel r and each 8-neighbour s in the graph, w_rs = exp(-(I_r - I_s)^2 / sigma_r), normalised
+    to sum to 1 over r's neighbours, where sigma_r = 0.6 * the variance of I over the 3x3 window (r and
+    its neighbours), raised to at least min_s (I_r - I_s)^2 / ln(100) (so that the closest neighbour
+    keeps a weight of 0.01 or more) and to at least 2e-6, exactly as the toolbox does it.
+
+    Parameters
+    ----------
+    grey : float (H, W) grey levels in [0, 1].
+    nodes : bool (H, W) the graph's pixels; a pixel outside it is nobody's neighbour.
+
+    Returns
+    -------
+    float64 (8, H, W): the weight of each neighbour offset (:data:`_OFFSETS8` order), 0 where the
+    neighbour is outside the image or the graph.
+    """
+    h, w = grey.shape
+    padded = np.pad(np.where(nodes, grey, np.nan), 1, constant_values=np.nan)
+    nb = np.stack([padded[1 + dr:1 + dr + h, 1 + dc:1 + dc + w] for dr, dc in _OFFSETS8])
+    ok = ~np.isnan(nb)
+    nbz = np.where(ok, nb, 0.0)
+    count = ok.sum(axis=0) + 1.0
+    mean = (nbz.sum(axis=0) + grey) / count
+    var = ((np.where(ok, nbz - mean, 0.0) ** 2).sum(axis=0) + (grey - mean) ** 2) / count
+    d2 = np.where(ok, (nbz - grey) ** 2, np.inf)
+    closest = d2.min(axis=0)
+    closest = np.where(np.isfinite(closest), closest, 0.0)
+    sigma = np.maximum(np.maximum(0.6 * var, closest / -np.log(0.01)), 2e-6)
+    weights = np.exp(-d2 / sigma)  # exp(-inf) = 0 off the graph
+    total = weights.sum(axis=0)
+    return weights / np.where(total > 0, total, 1.0)
+
+
+def _nyu_solve(depth: np.ndarray, weights: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float,
+               rtol: float) -> np.ndarray:
+    """Solve the toolbox's system (I - W + alpha G) x = alpha G d over the ``nodes`` (G: the known pixels).
+
+    GMRES, preconditioned by a symmetric block Gauss-Seidel step: Jacobi on the known pixels (diagonally
+    dominant, 1 + alpha against 1), an exact sparse LU solve on the unknown ones, Jacobi again (on the
+    TUM frame with 79k unknowns: 10 iterations to 1e-8, where algebraic multigrid (pyamg, Ruge-Stuben or
+    smoothed aggregation) on the whole system took 63-75, and as the unknowns' block solver 119-182).
+    """
+    h, w = depth.shape
+    unknown = nodes & ~known
+    order = np.full((h, w), -1, dtype=np.int64)
+    ur, uc = np.nonzero(unknown)
+    kr, kc = np.nonzero(nodes & known)
+    nu, n = ur.size, ur.size + kr.size
+    order[ur, uc] = np.arange(nu)
+    order[kr, kc] = np.arange(nu, n)
+    rr, cc = np.concatenate([ur, kr]), np.concatenate([uc, kc])
+    padded = np.pad(order, 1, constant_values=-1)
+    ii, jj, vv = [np.arange(n)], [np.arange(n)], [np.where(np.arange(n) < nu, 1.0, 1.0 + alpha)]
+    for k, (dr, dc) in enumerate(_OFFSETS8):
+        j = padded[1 + dr + rr, 1 + dc + cc]
+        wk = weights[k, rr, cc]
+        use = (j >= 0) & (wk > 0)
+        ii.append(np.nonzero(use)[0])
+        jj.append(j[use])
+        vv.append(-wk[use])
+    ii, jj, vv = np.concatenate(ii), np.concatenate(jj), np.concatenate(vv)
+    A = sparse.csr_matrix((vv, (ii, jj)), shape=(n, n))
+    b = np.zeros(n)
+    b[nu:] = alpha * depth[kr, kc].astype(np.float64)
+    diag_k = 1.0 + alpha
+    upper = ii < nu
+    uu = upper & (jj < nu)
+    lu = splu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)))
+    uk = upper & (jj >= nu)
+    A_uk = sparse.csr_matrix((vv[uk], (ii[uk], jj[uk] - nu)), shape=(nu, n - nu))
+
+    A_k = A[nu:]
+
+    def precondition(v: np.ndarray) -> np.ndarray:
+        xk = v[nu:] / diag_k
+        x = np.concatenate([lu.solve(v[:nu] - A_uk @ xk), xk])
+        x[nu:] += (v[nu:] - A_k @ x) / diag_k  # a second Jacobi step on the known pixels: ~30 % fewer iterations
+        return x
+
+    x0 = precondition(b)
+    x, info = gmres(A, b, x0=x0, rtol=rtol, atol=0.0, restart=60, maxiter=20,
+                    M=LinearOperator(A.shape, precondition, dtype=np.float64))
+    if info != 0:  # not converged (never seen): the direct solve
+        x = spsolve(A.tocsc(), b)
+    out = np.full((h, w), np.nan)
+    out[rr, cc] = x
+    return out
+
+
+def fill_nyu_colorization(
+    depth: np.ndarray,
+    rgb: np.ndarray | None = None,
+    mask: np.ndarray | None = None,
+    *,
+    alpha: float = 1.0,
+    rtol: float = 1e-9,
+    reach: int | None = None,
+) -> np.ndarray:
+    """``fill_depth_colorization`` of the NYU Depth v2 toolbox (Silberman et al. 2012, after Levin et al.
+    2004), at full resolution.
+
+    Unknowns are every pixel of the graph, known ones included: each pixel should equal the
+    affinity-weighted mean of its 3x3 neighbours (:func:`nyu_affinities`, from the grey image), and each
+    known pixel its measured depth, with weight ``alpha``; one sparse solve of
+    (I - W + alpha G) x = alpha G d, in depth (metres; the toolbox scales by the largest depth, which
+    changes nothing). The graph is the whole image for the default mask, as in the toolbox; with a
+    mask, the valid pixels and the mask pixels (other invalid pixels are left out). Only the mask pixels
+    are written: valid pixels keep their measured depth, not the system's smoothed value. Solved by
+    GMRES to a relative residual of ``rtol`` (a direct solve agrees to about 1e-7 m on the TUM frame).
+
+    Parameters
+    ----------
+    depth : float (H, W) metres, NaN = invalid.
+    rgb : uint8 (H, W, 3) registered colour image; None gives uniform weights.
+    mask : bool (H, W) pixels to fill, default every invalid pixel.
+    alpha : weight of the data term on the known pixels (the toolbox's default, 1).
+    rtol : relative residual at which the iterative solve stops.
+    reach : only the known pixels within this many px of a mask pixel join the graph (None: all of them,
+        as in the toolbox). A known pixel's value in the solution is half its depth plus half its
+        neighbours' mean, so the influence of the pixels left out shrinks by about half per pixel: at
+        ``reach=16`` the fill of the TUM frame's holes moves by at most 2e-4 mm, and costs half as much.
+
+    Returns
+    -------
+    float32 (H, W): a copy of ``depth`` with the mask pixels filled (those without a valid pixel
+    connected to them stay NaN).
+    """
+    depth = as_depth(depth)
+    mask = _fill_mask(depth, mask)
+    valid = valid_depth(depth)
+    known = valid & ~mask
+    grey = grey_levels(rgb, depth.shape)
+    if grey is None:
+        grey = np.zeros(depth.shape)
+    nodes = known | reachable(mask, known, eight=True)
+    if reach is not None:
+        near = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_C, 3) <= reach
+        nodes &= near
+    if not (nodes & mask).any():
+        return _finish(depth, mask, np.zeros(depth.shape), np.zeros(depth.shape, bool))
+    rows, cols = np.nonzero(nodes.any(axis=1))[0], np.nonzero(nodes.any(axis=0))[0]
+    box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]  # the graph's bounding box: the same system
+    x = np.full(depth.shape, np.nan)
+    x[box] = _nyu_solve(depth[box], nyu_affinities(grey[box], nodes[box]), nodes[box], known[box], float(alpha),
+                        rtol)
+    return _finish(depth, mask, x, nodes & mask)
 
 
 def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.ndarray:
