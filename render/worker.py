@@ -15,7 +15,7 @@ import time
 import traceback
 from pathlib import Path
 
-from rgbd2scene.stages.blender import Task, ready_line
+from rgbd2scene.stages.blender import Task, ready_line, tie_to_parent
 
 
 class TaskError(RuntimeError):
@@ -84,4 +84,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    tie_to_parent()  # first, before anything slow (importing bpy): a worker never outlives its caller
     sys.exit(main())
