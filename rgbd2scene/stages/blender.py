@@ -77,7 +77,9 @@ class Task:
 # --- the progress protocol (worker stdout, one event per line) -------------------------------------------
 
 #: ``ready 0.731s device CPU``; ``frame 3 rgb 1.8s cpu 3.5s``; ``frame 3 done 2.0s cpu 3.9s rgb 1.8s gt 0.2s
-#: rss 668MB``; ``frame 3 skipped``; ``built PATH``; ``describe {json}``.
+#: rss 668MB``; ``frame 3 skipped``; ``built PATH``; ``describe {json}``. The render worker appends to a frame's
+#: ``rgb``/``done`` line the seconds Cycles spent on it per phase (``rgb_sync``, ``rgb_bvh``, ``rgb_trace``,
+#: ``rgb_save``, likewise ``gt_*`` for the data render: :mod:`render.timing`).
 PROTOCOL = ("ready", "frame", "built", "describe")
 _FRAME = re.compile(r"^frame (\d+) (done|skipped|rgb)\b")
 _NUMBERS = re.compile(r"(\w+) ([0-9.]+)(s|MB)")
