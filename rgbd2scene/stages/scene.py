@@ -60,7 +60,8 @@ class SceneOptions:
     material: str = option("wet_tissue", "tissue look", choices=MATERIALS)
     tissue_detail: str = option("on", "procedural sub-millimetre micro-structure of the wet_tissue material (albedo "
                                 "mottling, small vessels, bumps; seeded by --seed; shading only, the ground truth "
-                                "does not change)", choices=("on", "off"))
+                                "does not change): on (baked into textures when the scene is built), procedural "
+                                "(evaluated per sample: slower) or off", choices=("on", "procedural", "off"))
     light: str = option("spot", "light at the tip", choices=("spot", "point"))
     light_power_w: float = option(0.05, "light power, watts", flag="--light-power")
     deform: str = option("none", "tissue motion: breathing, heartbeat (periodic displacement along the surface "
@@ -128,8 +129,8 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
             raise UserError(f"path: {exc}") from None
     light = Light(kind=options.light, power_w=options.light_power_w)
     # only the wet-tissue material has the micro-structure: record what is built
-    detail = TissueDetail(enabled=options.tissue_detail == "on" and options.material == "wet_tissue",
-                          seed=options.seed)
+    detail = TissueDetail(enabled=options.tissue_detail != "off" and options.material == "wet_tissue",
+                          seed=options.seed, bake=options.tissue_detail != "procedural")
     tissue = tissue_object(options.material, folder.MESH, texture, detail)
     config = config or SceneConfig()
     if (config.deformation_preset or options.deform) != "none":
