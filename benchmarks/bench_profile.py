@@ -6,7 +6,9 @@ Usage: ``python benchmarks/bench_profile.py [--quick] [--sizes WxH ...] [--scene
 
 Scenes are built from the bundled sample like ``bench_render`` does (``rgbd2scene scene`` on
 ``data_samples/tissue``, default wet-tissue material, scan path of 100 frames): a static scene, breathing
-tissue (``--deform breathing``) and an instrument scene (``--instrument``). Each (scene, size) renders the
+tissue (``--deform breathing``) and an instrument scene (``--instrument``), plus the static scene with its
+tissue detail evaluated per sample (``procedural``, ``--tissue-detail procedural``: the cost of a sample
+before the bake, side by side). Each (scene, size) renders the
 first frames of the path with the library defaults (RGB + all ground truth) in one worker, through the
 project's one Blender entry point (a render task run by ``run_task``). The phases come from the worker:
 
@@ -50,7 +52,10 @@ from rgbd2scene.stages.render import RenderOptions, load_scene, parse_size, rend
 from rgbd2scene.versions import software_versions  # noqa: E402
 
 WORK = ROOT / "bench_out" / "profile"
-SCENES = {"static": (), "breathing": ("--deform", "breathing"), "instrument": ("--instrument",)}
+#: ``procedural``: the static scene with its tissue detail evaluated per sample (not baked): the "before" of
+#: the bake, side by side with ``static``.
+SCENES = {"static": (), "procedural": ("--tissue-detail", "procedural"), "breathing": ("--deform", "breathing"),
+          "instrument": ("--instrument",)}
 SIZES = ((256, 128), (512, 256), (1280, 1024))
 #: Frames per run (the first one builds the BVH and loads the kernels); fewer at the largest size.
 FRAMES = {(256, 128): 3, (512, 256): 3, (1280, 1024): 2}
