@@ -11,9 +11,11 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-BENCHMARKS = ["bench_mesh.py", "bench_capture.py", "bench_fill.py", "bench_render.py", "bench_realism.py",
-              "bench_twin.py", "bench_sensor.py", "bench_stereo.py", "bench_export.py", "bench_batch.py"]
-HAS_QUICK = {"bench_capture.py", "bench_fill.py", "bench_render.py", "bench_realism.py", "bench_sensor.py",
+BENCHMARKS = ["bench_mesh.py", "bench_capture.py", "bench_fill.py", "bench_render.py", "bench_profile.py",
+              "bench_realism.py", "bench_twin.py", "bench_sensor.py", "bench_stereo.py", "bench_export.py",
+              "bench_batch.py"]
+HAS_QUICK = {"bench_capture.py", "bench_fill.py", "bench_render.py", "bench_profile.py", "bench_realism.py",
+             "bench_sensor.py",
              "bench_stereo.py", "bench_export.py", "bench_batch.py"}
 
 if __name__ == "__main__":

@@ -25,6 +25,14 @@ ever deforms and keeps its physical size at any camera distance. It has three la
    height of ``bump_height_m`` through a Bump node into the BSDF's and the coat's normals: shading only,
    the mesh does not move.
 
+Evaluated per shading sample, those noises (some 30 octaves of 4-D Perlin noise, the bump's height three
+times) cost as much as the rest of a sample. When the scene is built they are therefore **baked**
+(:func:`bake_tissue_detail`, ``TissueDetail.bake``) into two float textures over the mesh's UVs: the colour
+multiplier (mottling x vessels) and the height, at the texel size the closest camera position needs
+(:func:`detail_texture_size`); the material then reads them like the capture's texture. Detail finer than a
+texel is averaged (several samples per texel), as a pixel would average it. A mesh without usable UVs keeps
+the procedural nodes.
+
 Object looks (:data:`OBJECT_MATERIALS`; colour from the texture, else ``Material.color``, else the vertex
 colours, else the kind's own):
 
@@ -38,6 +46,8 @@ the Normal pass is then the mesh's interpolated normal.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import bpy
 import numpy as np
@@ -67,13 +77,14 @@ WET_TISSUE = {"Roughness": 0.3, "Specular IOR Level": 0.5, "IOR": 1.4,
               "Subsurface Weight": 0.05, "Subsurface Scale": 0.0005}
 
 
-def make_material(material: Material, image=None, vertex_colors: bool = True):
+def make_material(material: Material, image=None, vertex_colors: bool = True, baked: tuple | None = None):
     """The Blender material of a part's :class:`~rgbd2scene.scene.model.Material`, coloured by ``image`` (its
-    texture) or, without one, the mesh's vertex colours (when ``vertex_colors``) or the material's colour."""
+    texture) or, without one, the mesh's vertex colours (when ``vertex_colors``) or the material's colour;
+    ``baked``: the wet-tissue detail's images (:func:`bake_tissue_detail`)."""
     if material.kind == "as_captured":
         return as_captured_material(image)
     if material.kind == "wet_tissue":
-        return wet_tissue_material(image, material.detail)
+        return wet_tissue_material(image, material.detail, baked)
     if material.kind in OBJECT_MATERIALS:
         return OBJECT_MATERIALS[material.kind](material, image, vertex_colors)
     raise ValueError(f"unknown material {material.kind!r}; choose one of as_captured, wet_tissue, "
@@ -90,15 +101,19 @@ def as_captured_material(image=None):
     return mat
 
 
-def wet_tissue_material(image=None, detail: TissueDetail | None = None):
-    """Glossy tissue lit by the scope light, with the procedural micro-structure when ``detail`` is given and
-    enabled."""
+def wet_tissue_material(image=None, detail: TissueDetail | None = None, baked: tuple | None = None):
+    """Glossy tissue lit by the scope light, with the micro-structure when ``detail`` is given and enabled:
+    procedural, or read from ``baked`` (the multiplier and height images of :func:`bake_tissue_detail`)."""
     mat, nodes, links = _new_material("wet_tissue")
     colour = _colour_source(nodes, image)
     shader = nodes.new("ShaderNodeBsdfPrincipled")
     links.new(colour, shader.inputs["Subsurface Radius"])  # reddish scattering, from the capture's colour
     if detail is not None and detail.enabled:
-        colour, normal = add_tissue_detail(nodes, links, colour, detail)
+        if baked is None:
+            colour, normal = add_tissue_detail(nodes, links, colour, detail)
+        else:
+            multiplier, height = (_baked_source(nodes, links, img) for img in baked)
+            colour, normal = _apply_detail(nodes, links, colour, multiplier, height, detail)
         links.new(normal, shader.inputs["Normal"])
         links.new(normal, shader.inputs["Coat Normal"])  # the wet film follows the surface
     links.new(colour, shader.inputs["Base Color"])
@@ -120,6 +135,23 @@ def add_tissue_detail(nodes, links, colour, detail: TissueDetail):
 
     Returns the sockets of the new base colour and of the bumped normal.
     """
+    multiplier, height = detail_fields(nodes, links, detail)
+    return _apply_detail(nodes, links, colour, multiplier, height, detail)
+
+
+def _apply_detail(nodes, links, colour, multiplier, height, detail: TissueDetail):
+    """The base colour (``colour`` x the detail's ``multiplier``) and the normal bumped by ``height``."""
+    result = _mix_colour(nodes, links, "MULTIPLY", 1.0, colour, multiplier)
+    bump = nodes.new("ShaderNodeBump")
+    bump.inputs["Strength"].default_value = 1.0
+    bump.inputs["Distance"].default_value = detail.bump_height_m
+    links.new(height, bump.inputs["Height"])
+    return result, bump.outputs["Normal"]
+
+
+def detail_fields(nodes, links, detail: TissueDetail):
+    """The procedural detail as two fields over the surface: the colour multiplier (mean 1: mottling and
+    vessels) and the height (bumps plus raised vessels, in units of ``bump_height_m``); their sockets."""
     coords = nodes.new("ShaderNodeTexCoord")
     offset = nodes.new("ShaderNodeVectorMath")
     offset.operation = "ADD"
@@ -138,16 +170,168 @@ def add_tissue_detail(nodes, links, colour, detail: TissueDetail):
     coverage = VESSEL_COVERAGE_PER_WIDTH * detail.vessel_width_m / detail.vessel_spacing_m
     mean = [1.0 - detail.vessel_strength * coverage * (1.0 - t) for t in VESSEL_TINT]
     tint = _mix_colour(nodes, links, "MULTIPLY", 1.0, tint, [1.0 / m for m in mean])
-    result = _mix_colour(nodes, links, "MULTIPLY", 1.0, colour, tint)
-    result = _mix_colour(nodes, links, "MULTIPLY", 1.0, result, modulation)
+    multiplier = _mix_colour(nodes, links, "MULTIPLY", 1.0, tint, modulation)
 
     bumps = _noise(nodes, links, position, detail.scale_m, detail=6.0, roughness=0.6, w=1.0)
     height = _math(nodes, links, "MULTIPLY_ADD", vessels, VESSEL_RELIEF, bumps)
-    bump = nodes.new("ShaderNodeBump")
-    bump.inputs["Strength"].default_value = 1.0
-    bump.inputs["Distance"].default_value = detail.bump_height_m
-    links.new(height, bump.inputs["Height"])
-    return result, bump.outputs["Normal"]
+    return multiplier, height
+
+
+# --- baking the detail ------------------------------------------------------------------------------------
+
+#: Texels of the baked detail across one pixel of the closest view (bilinear lookups then keep about a
+#: pixel's worth of detail), the largest side of a baked texture, and the bake's samples per texel (they
+#: average the detail finer than a texel).
+BAKE_TEXELS_PER_PIXEL = 1.0
+BAKE_MAX_SIZE = 4096
+BAKE_SAMPLES = 1
+#: The baked textures are 16-bit PNGs of value / BAKE_RANGE (the multiplier reaches about 1.3, the height 1.3).
+BAKE_RANGE = 2.0
+#: The UV map the baked textures are read through: the seen part of the capture's UV square, stretched to
+#: [0, 1]^2 (the bake fills the whole image, so only what the path can see is baked).
+DETAIL_UV = "DetailUV"
+#: Extra margin of the seen UV window, as a fraction of its size on each side.
+WINDOW_MARGIN = 0.02
+#: Below this UV area per unit of surface area (a UV map that does not unfold the mesh) nothing is baked.
+MIN_UV_DENSITY = 1e-6
+
+
+def seen_vertices(vertices, poses, K, width: int, height: int, margin: float = 0.1) -> tuple[np.ndarray, float]:
+    """Which vertices some camera of the path sees (in front of it, inside the image widened by ``margin``
+    of its size on each side; occlusion ignored), and the closest distance along a viewing axis among them.
+
+    ``poses``: (F, 4, 4) T_world_cam (OpenCV axes) in the vertices' frame; ``K``: 3x3 intrinsics.
+    """
+    v = np.asarray(vertices, np.float64)
+    seen = np.zeros(len(v), bool)
+    closest = np.inf
+    for T in np.asarray(poses, np.float64):
+        R, t = T[:3, :3], T[:3, 3]
+        d = v - t
+        x, y, z = (d @ R[:, 0], d @ R[:, 1], d @ R[:, 2])  # camera coordinates, written out (faster)
+        front = z > 1e-9
+        zs = np.where(front, z, 1.0)
+        u, w = K[0, 0] * x / zs + K[0, 2], K[1, 1] * y / zs + K[1, 2]
+        inside = front & (np.abs(u - (width - 1) / 2) <= width * (0.5 + margin)) & \
+            (np.abs(w - (height - 1) / 2) <= height * (0.5 + margin))
+        if inside.any():
+            seen |= inside
+            closest = min(closest, float(z[inside].min()))
+    return seen, closest
+
+
+def detail_uv_window(uvs, seen) -> tuple[np.ndarray, np.ndarray] | None:
+    """The UV box (lower corner, upper corner) of the seen vertices, widened by ``WINDOW_MARGIN``; None if
+    nothing is seen."""
+    uv = np.asarray(uvs, np.float64)[np.asarray(seen, bool)]
+    if len(uv) == 0:
+        return None
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    pad = WINDOW_MARGIN * np.maximum(hi - lo, 1e-6)
+    return lo - pad, hi + pad
+
+
+def detail_texture_size(vertices, triangles, uvs, window, closest: float, fx: float,
+                        texels_per_pixel: float = BAKE_TEXELS_PER_PIXEL,
+                        max_size: int = BAKE_MAX_SIZE) -> tuple[int, int] | None:
+    """(width, height) of a texture over the UV ``window`` whose texels are ``texels_per_pixel`` times finer
+    than a pixel at the ``closest`` distance (metres) of a camera of focal length ``fx`` pixels, or None when
+    the UVs do not unfold the mesh.
+
+    The metres per UV unit along u and along v are the medians over the triangles of the columns of the
+    Jacobian d(position)/d(uv). The texture keeps its aspect when ``max_size`` caps it.
+    """
+    v = np.asarray(vertices, np.float64)
+    t = np.asarray(triangles, np.int64)
+    uv = np.asarray(uvs, np.float64)
+    e = np.stack([v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]], axis=-1)  # (T, 3, 2)
+    d = np.stack([uv[t[:, 1]] - uv[t[:, 0]], uv[t[:, 2]] - uv[t[:, 0]]], axis=-1)  # (T, 2, 2)
+    det = d[:, 0, 0] * d[:, 1, 1] - d[:, 0, 1] * d[:, 1, 0]
+    area = 0.5 * np.linalg.norm(np.cross(e[..., 0], e[..., 1]), axis=-1)
+    ok = np.abs(det) > MIN_UV_DENSITY * np.maximum(area, 1e-30)
+    if ok.sum() < max(1, len(t) // 10):
+        return None
+    inv = np.stack([np.stack([d[ok, 1, 1], -d[ok, 0, 1]], -1), np.stack([-d[ok, 1, 0], d[ok, 0, 0]], -1)], 1)
+    jac = np.einsum("tij,tjk->tik", e[ok], inv / det[ok, None, None])  # d(position) / d(u, v)
+    metres = np.median(np.linalg.norm(jac, axis=1), axis=0) * (np.asarray(window[1]) - np.asarray(window[0]))
+    texel = max(float(closest), 1e-6) / float(fx) / texels_per_pixel
+    size = metres / texel
+    size *= min(1.0, max_size / size.max())
+    size = np.ceil(size * (1 - 1e-5))  # not one texel more for a rounding error (float32 UVs)
+    return int(max(2, size[0])), int(max(2, size[1]))
+
+
+def bake_tissue_detail(obj, detail: TissueDetail, size: tuple[int, int], window,
+                       samples: int = BAKE_SAMPLES) -> tuple:
+    """Bake the procedural detail of ``detail`` on ``obj`` (its metric texture space) into two images of
+    ``size`` (width, height) over the UV ``window`` of its UV map: the colour multiplier and the height.
+
+    The window becomes the UV map :data:`DETAIL_UV` (stretched to the unit square); Cycles bakes each field as
+    an emission (``EMIT``, ``samples`` per texel); the images are stored as 16-bit PNGs of value /
+    :data:`BAKE_RANGE`, packed into the .blend. The scene's render settings are put back afterwards.
+    """
+    import tempfile
+
+    from rgbd2scene.files.images import write_image
+
+    scene, layers = bpy.context.scene, obj.data.uv_layers
+    source = layers.active
+    uv = np.empty(2 * len(obj.data.loops), np.float32)
+    source.uv.foreach_get("vector", uv)
+    lo, hi = (np.asarray(c, np.float32) for c in window)
+    detail_uv = layers.new(name=DETAIL_UV)
+    detail_uv.uv.foreach_set("vector", ((uv.reshape(-1, 2) - lo) / (hi - lo)).ravel())
+    source.active_render = True  # the capture's texture stays on the capture's UVs
+
+    mat, nodes, links = _new_material("tissue_detail_bake")
+    multiplier, height = detail_fields(nodes, links, detail)
+    emission = nodes.new("ShaderNodeEmission")
+    emission.inputs["Strength"].default_value = 1.0 / BAKE_RANGE
+    links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
+    target = nodes.new("ShaderNodeTexImage")
+    nodes.active = target
+    kept_materials = list(obj.data.materials)
+    saved = (scene.render.engine, scene.cycles.samples, scene.cycles.use_denoising,
+             bpy.context.view_layer.objects.active)
+    images = []
+    try:
+        obj.data.materials.clear()
+        obj.data.materials.append(mat)
+        layers.active = detail_uv  # the bake writes through the active UV map
+        scene.render.engine = "CYCLES"
+        scene.cycles.samples, scene.cycles.use_denoising = int(samples), False
+        for o in bpy.context.view_layer.objects:
+            o.select_set(o == obj)
+        bpy.context.view_layer.objects.active = obj
+        with tempfile.TemporaryDirectory(prefix="rgbd2scene-bake-") as tmp:
+            for name, field in (("multiplier", multiplier), ("height", height)):
+                work = bpy.data.images.new(f"bake_{name}", size[0], size[1], alpha=False, float_buffer=True)
+                work.colorspace_settings.name = "Non-Color"  # before the pixels (see add_texture)
+                links.new(field, emission.inputs["Color"])
+                target.image = work
+                bpy.ops.object.bake(type="EMIT", margin=4, margin_type="EXTEND", use_clear=True)
+                pixels = np.empty(size[0] * size[1] * 4, np.float32)
+                work.pixels.foreach_get(pixels)
+                bpy.data.images.remove(work)
+                rgb = pixels.reshape(size[1], size[0], 4)[::-1, :, :3]  # rows top first
+                if name == "height":
+                    rgb = rgb[..., 0]
+                path = Path(tmp) / f"tissue_detail_{name}.png"
+                write_image(path, np.round(np.clip(rgb, 0.0, 1.0) * 65535.0).astype(np.uint16), compression=9)
+                image = bpy.data.images.load(str(path))
+                image.colorspace_settings.name = "Non-Color"
+                image.pack()
+                image.filepath = f"//{path.name}"  # packed: the temporary file is not needed
+                images.append(image)
+    finally:
+        layers.active = source
+        obj.data.materials.clear()
+        for m in kept_materials:
+            obj.data.materials.append(m)
+        scene.render.engine, scene.cycles.samples, scene.cycles.use_denoising = saved[:3]
+        bpy.context.view_layer.objects.active = saved[3]
+        bpy.data.materials.remove(mat)
+    return tuple(images)
 
 
 # --- helpers --------------------------------------------------------------------------------------------
@@ -171,6 +355,19 @@ def _colour_source(nodes, image):
         tex = nodes.new("ShaderNodeVertexColor")
         tex.layer_name = VERTEX_COLORS
     return tex.outputs["Color"]
+
+
+def _baked_source(nodes, links, image):
+    """A baked detail image through :data:`DETAIL_UV` (bilinear, edges extended), back to its values (x
+    :data:`BAKE_RANGE`), as a colour socket."""
+    uv = nodes.new("ShaderNodeUVMap")
+    uv.uv_map = DETAIL_UV
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = image
+    tex.interpolation = TEXTURE_INTERPOLATION
+    tex.extension = "EXTEND"
+    links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    return _mix_colour(nodes, links, "MULTIPLY", 1.0, tex.outputs["Color"], (BAKE_RANGE,) * 3)
 
 
 def _seed_offset(seed: int) -> tuple[float, float, float]:

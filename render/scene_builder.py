@@ -51,7 +51,15 @@ import numpy as np
 from mathutils import Matrix
 from scipy.spatial.transform import Rotation
 
-from render.materials import VERTEX_COLORS, make_material, use_metric_texture_space
+from render.materials import (
+    VERTEX_COLORS,
+    bake_tissue_detail,
+    detail_texture_size,
+    detail_uv_window,
+    make_material,
+    seen_vertices,
+    use_metric_texture_space,
+)
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
@@ -119,12 +127,36 @@ def build_mesh_object(scene, obj: SceneObject, scene_dir: Path, description: Sce
         bobj = add_tissue(mesh, material, part.id, name=name)
         if part.material.detail is not None and part.material.detail.enabled:
             use_metric_texture_space(bobj.data)  # the micro-structure is sized in metres on the surface
+            bake_detail(bobj, part, mesh, image, description)
         if part.poses is not None:
             key_poses(scene, bobj, part.poses)
         if part.deformation is not None:
             key_deformation(bobj, mesh, part.deformation, description.path.frames, description.path.fps)
         made.append(bobj)
     return made
+
+
+def bake_detail(bobj, part, mesh, image, description: SceneDescription) -> None:
+    """Replace the wet-tissue material's procedural detail by textures baked over what the path can see, at the
+    texel size its closest camera position needs (``render.materials``; kept procedural without usable UVs,
+    with nothing in view or with ``bake`` off)."""
+    if part.material.kind != "wet_tissue" or not part.material.detail.bake or mesh.uvs is None:
+        return
+    intr = description.rig.intrinsics
+    # camera poses in the part's frame (the texture space is the undeformed mesh's)
+    poses = [np.linalg.inv(part.pose_at(f)) @ description.camera_pose(f) for f in range(description.path.frames)]
+    seen, closest = seen_vertices(mesh.vertices, poses, intr.K, intr.width, intr.height)
+    window = detail_uv_window(mesh.uvs, seen)
+    size = None if window is None else detail_texture_size(mesh.vertices, mesh.triangles, mesh.uvs, window,
+                                                            closest, intr.fx)
+    if size is None:
+        return
+    procedural = bobj.data.materials[0]
+    baked = bake_tissue_detail(bobj, part.material.detail, size, window)
+    bobj.data.materials[0] = material = make_material(part.material, image, mesh.vertex_colors is not None, baked)
+    name = procedural.name
+    bpy.data.materials.remove(procedural)
+    material.name = name
 
 
 def key_deformation(bobj, mesh, deformation: Deformation, frames: int, fps: float) -> None:

@@ -15,7 +15,7 @@ import time
 import traceback
 from pathlib import Path
 
-from rgbd2scene.stages.blender import Task, ready_line
+from rgbd2scene.stages.blender import Task, parse_line, ready_line, tie_to_parent
 
 
 class TaskError(RuntimeError):
@@ -36,9 +36,22 @@ def run(task: Task, say) -> None:
         say(f"built {task.blend}")
     elif task.action == "render":
         from render.frames import WorkerError, render_task
+        from render.timing import PhaseClock
+
+        clock = PhaseClock(bpy)
+
+        def say_timed(line: str) -> None:
+            """A frame's progress line with the phases Cycles spent on it (``rgb_trace 1.2s``...)."""
+            event = parse_line(line)
+            if event is not None and event.kind in ("rgb", "done"):
+                phases = clock.take("rgb", event.frame)
+                if event.kind == "done":
+                    phases.update(clock.take("gt", event.frame))
+                line += "".join(f" {k} {v:.3f}s" for k, v in phases.items())
+            say(line)
 
         try:
-            render_task(bpy, task, say)
+            render_task(bpy, task, say_timed)
         except WorkerError as exc:
             raise TaskError(str(exc)) from None
     elif task.action == "describe":
@@ -84,4 +97,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    tie_to_parent()  # first, before anything slow (importing bpy): a worker never outlives its caller
     sys.exit(main())

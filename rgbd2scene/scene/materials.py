@@ -43,6 +43,9 @@ class TissueDetail:
         ones.
     bump_height_m
         Height of the bumps (shading only); vessels are raised by 0.3 of it.
+    bake
+        Bake the detail into textures when the scene is built (a sample then costs what a textured surface
+        costs; the procedural shader doubled it). Off: evaluated per sample (procedural).
 
     The defaults were tuned with ``benchmarks/bench_realism.py`` (real stereo-endoscope frames of the
     Hamlyn heart phantom): see ``benchmarks/results/realism.md``.
@@ -56,6 +59,7 @@ class TissueDetail:
     vessel_width_m: float = 0.00013
     vessel_spacing_m: float = 0.003
     bump_height_m: float = 0.0003
+    bake: bool = True
 
     def __post_init__(self):
         for name in ("scale_m", "vessel_width_m", "vessel_spacing_m"):

@@ -68,7 +68,8 @@ class SceneOptions:
     material: str = option("wet_tissue", "tissue look", choices=MATERIALS)
     tissue_detail: str = option("on", "procedural sub-millimetre micro-structure of the wet_tissue material (albedo "
                                 "mottling, small vessels, bumps; seeded by --seed; shading only, the ground truth "
-                                "does not change)", choices=("on", "off"))
+                                "does not change): on (baked into textures when the scene is built), procedural "
+                                "(evaluated per sample: slower) or off", choices=("on", "procedural", "off"))
     light: str = option("spot", "light at the tip", choices=("spot", "point"))
     light_power_w: float = option(DEFAULT_LIGHT_W, "light power, watts (all outlets together)", flag="--light-power")
     light_outlets: int = option(2, "fibre outlets at the tip: 1 (between the eyes) or 2 (beside the lenses, "
@@ -140,8 +141,8 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
     light = Light(kind=options.light, power_w=options.light_power_w, offset=(rig.baseline / 2, 0.0, 0.0),
                   outlets=options.light_outlets, outlet_spacing=rig.baseline + 2 * OUTLET_MARGIN_M)
     # only the wet-tissue material has the micro-structure: record what is built
-    detail = TissueDetail(enabled=options.tissue_detail == "on" and options.material == "wet_tissue",
-                          seed=options.seed)
+    detail = TissueDetail(enabled=options.tissue_detail != "off" and options.material == "wet_tissue",
+                          seed=options.seed, bake=options.tissue_detail != "procedural")
     tissue = tissue_object(options.material, folder.MESH, texture, detail)
     config = config or SceneConfig()
     if (config.deformation_preset or options.deform) != "none":

@@ -1,0 +1,183 @@
+"""A Blender worker never outlives its parent (issue 16 §6): killed with SIGKILL, a caller (the CLI, a thread
+of a local pool) takes its ``python -m render.worker`` process with it; SIGTERM still stops a render cleanly.
+
+The watchdog is checked alone; the rest kills real callers of a long render of a one-quad scene (64x32,
+thousands of samples, so the worker is mid-frame when its parent dies) and looks for the worker in ``/proc``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from rgbd2scene.stages.blender import watch_parent
+
+#: How long a worker may take to go once its parent is killed.
+GONE_WITHIN_S = 5.0
+
+
+def test_watch_parent_calls_back_once_the_parent_changes():
+    orphaned = threading.Event()
+    watch_parent(os.getppid() + 1, orphaned.set, interval=0.01)  # "our parent is gone": not our parent
+    assert orphaned.wait(2.0)
+    kept = threading.Event()
+    watch_parent(os.getppid(), kept.set, interval=0.01)
+    assert not kept.wait(0.3)
+
+
+# ================================================================ killing real callers
+
+pytestmark_linux = pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc (Linux)")
+
+
+def _ppid_and_state(pid: int) -> tuple[int, str] | None:
+    """(parent pid, state letter) of a live process, None when it is gone."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()
+    return int(fields[1]), fields[0]
+
+
+def _workers_of(parent: int) -> list[int]:
+    """Live ``render.worker`` processes whose parent is ``parent``."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        info = _ppid_and_state(int(entry.name))
+        if b"render.worker" in cmdline and info is not None and info[0] == parent and info[1] != "Z":
+            out.append(int(entry.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    info = _ppid_and_state(pid)
+    return info is not None and info[1] != "Z"  # an unreaped zombie has ended
+
+
+def _wait_for_worker(proc: subprocess.Popen, dataset: Path, timeout: float = 120.0) -> int:
+    """The pid of ``proc``'s worker once it is rendering into ``dataset`` (its scratch folder exists, then a
+    second more)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, f"the caller ended (status {proc.returncode}) before it was killed"
+        workers = _workers_of(proc.pid)
+        if workers and list(dataset.glob(".work/*")):
+            time.sleep(1.0)  # into the render
+            assert _alive(workers[0])
+            return workers[0]
+        time.sleep(0.1)
+    raise AssertionError("no rendering worker appeared")
+
+
+def _gone_after_kill(proc: subprocess.Popen, worker: int, sig=signal.SIGKILL) -> float:
+    """Send ``sig`` to ``proc`` (not its worker) and return how long the worker took to go."""
+    t0 = time.monotonic()
+    os.kill(proc.pid, sig)
+    proc.wait(timeout=60)
+    while _alive(worker) and time.monotonic() - t0 < GONE_WITHIN_S + 5:
+        time.sleep(0.05)
+    if _alive(worker):
+        os.kill(worker, signal.SIGKILL)  # leave nothing running behind a failed test
+        raise AssertionError(f"the worker {worker} still runs {GONE_WITHIN_S + 5:.0f} s after its parent died")
+    return time.monotonic() - t0
+
+
+pytest.importorskip("bpy")
+
+from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
+from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
+from rgbd2scene.scene.paths import CameraPath  # noqa: E402
+from rgbd2scene.scene.rig import StereoRig  # noqa: E402
+from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from tests.conftest import write_scene_files  # noqa: E402
+
+#: A render that runs for minutes at 64x32 (no adaptive stop, no denoiser): long enough to be killed in.
+LONG_RENDER = ["--size", "64x32", "--samples", "20000", "--no-adaptive", "--denoise", "none", "--gt", "none",
+               "--quiet", "--no-sheet"]
+
+
+@pytest.fixture(scope="module")
+def quad_scene(tmp_path_factory) -> Path:
+    """A fronto-parallel textured quad filling the view of a 3-frame static path."""
+    folder = tmp_path_factory.mktemp("quad")
+    poses = np.repeat(np.eye(4)[None], 3, axis=0)
+    desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 32.0, 16.0), 0.005, clip_start=0.001,
+                                      clip_end=2.0), CameraPath(poses, fps=25.0, kind="test"), Light(),
+                            [tissue_object("as_captured")])
+    z = 0.05
+    quad = SimpleNamespace(vertices=np.array([(-1, -1, z), (-1, 1, z), (1, 1, z), (1, -1, z)], float),
+                           triangles=np.array([[0, 1, 2], [0, 2, 3]], np.int32),
+                           uvs=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32),
+                           vertex_colors=np.full((4, 3), 128, np.uint8), texture=np.full((4, 4, 3), 128, np.uint8))
+    write_scene_files(folder, quad, desc)
+    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict(), "files": {"mesh": "mesh.ply"}}))
+    return folder
+
+
+def _start_cli(scene: Path, out: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "rgbd2scene.cli", "render", str(scene), "-o", str(out),
+                             *LONG_RENDER], start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
+@pytestmark_linux
+def test_cli_killed_with_sigkill_takes_its_worker(quad_scene, tmp_path):
+    proc = _start_cli(quad_scene, tmp_path / "ds")
+    worker = _wait_for_worker(proc, tmp_path / "ds")
+    assert _gone_after_kill(proc, worker) < GONE_WITHIN_S
+
+
+#: A caller like the local pool of a batch build: ``run_task`` in a thread of a thread pool, while the main
+#: thread waits (the worker's parent-death signal follows the thread that started it).
+POOL_DRIVER = """
+import sys, concurrent.futures
+from rgbd2scene.stages.render import RenderOptions, prepare_render
+job = prepare_render(sys.argv[1], sys.argv[2], RenderOptions(size=(64, 32), samples=20000, adaptive=False,
+                                                             denoise="none", gt="none"))
+from rgbd2scene.batch.tasks import render_chunk
+with concurrent.futures.ThreadPoolExecutor(max_workers=1) as pool:
+    print(pool.submit(render_chunk, job, job.todo).result())
+"""
+
+
+@pytestmark_linux
+def test_pool_thread_killed_with_sigkill_takes_its_worker(quad_scene, tmp_path):
+    proc = subprocess.Popen([sys.executable, "-c", POOL_DRIVER, str(quad_scene), str(tmp_path / "ds")],
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = _wait_for_worker(proc, tmp_path / "ds")
+    assert _gone_after_kill(proc, worker) < GONE_WITHIN_S
+
+
+@pytestmark_linux
+def test_sigterm_stops_the_cli_and_its_worker(quad_scene, tmp_path):
+    """SIGTERM to the CLI ends its worker too; SIGTERM to the worker stops it, and the CLI reports it."""
+    proc = _start_cli(quad_scene, tmp_path / "a")
+    worker = _wait_for_worker(proc, tmp_path / "a")
+    assert _gone_after_kill(proc, worker, signal.SIGTERM) < GONE_WITHIN_S
+
+    proc = subprocess.Popen([sys.executable, "-m", "rgbd2scene.cli", "render", str(quad_scene), "-o",
+                             str(tmp_path / "b"), *LONG_RENDER], start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    worker = _wait_for_worker(proc, tmp_path / "b")
+    os.kill(worker, signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 1 and not _alive(worker)
+    assert "render worker failed (exit status -15)" in err
