@@ -217,9 +217,8 @@ class Renderer:
     def mask_views(self, index: int) -> None:
         """Keep, in the data render of frame ``index``, only the vertices its two eyes need
         (:meth:`SceneGeometry.view_support`: the passes are those of the whole scene, bit for bit)."""
-        intr = self.rig.intrinsics
         for mask in self.view_masks:
-            keep = self.geometry.view_support(mask.part, index, self.K, intr.width, intr.height).tolist()
+            keep = self.geometry.view_support(mask.part, index, (self.rig.left, self.rig.right)).tolist()
             if mask.kept:
                 mask.group.remove(mask.kept)
             mask.group.add(keep, 1.0, "REPLACE")
@@ -296,8 +295,7 @@ class Renderer:
         in a thread while Blender renders. Empty for a static scene."""
         if not self.moving:
             return {}
-        intr = self.rig.intrinsics
-        out: dict = {eye: occlusion_maps(self.geometry, index, self.frames, eye, self.K, intr.width, intr.height)
+        out: dict = {eye: occlusion_maps(self.geometry, index, self.frames, eye, self.rig.camera(eye))
                      for eye in VIEWS}
         out["geometry"] = {f"vertices_{pid}": self.geometry.part_vertices(i, index).astype(np.float32)
                            for pid, i in self.geometry.deformed()}

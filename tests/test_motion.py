@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from rgbd2scene import conventions as cv
+from rgbd2scene.camera import Camera
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.files.meshio import write_ply
@@ -109,7 +110,7 @@ def test_breathing_ground_truth_follows_the_deformation(breathing):
         for eye in ds.EYES:
             _, gt = ds.read_frame(out, eye, f)
             T = description.camera_pose(f, eye)
-            ref = geometry.cast(f, INTR.K, T, INTR.width, INTR.height)
+            ref = geometry.cast(f, Camera(INTR), T)
             both = np.isfinite(gt["depth"]) & np.isfinite(ref["depth"])
             assert both.mean() > 0.9
             # depth and normals of the deformed surface
@@ -233,7 +234,7 @@ def test_data_renders_of_what_is_in_view_equal_those_of_the_whole_scene(fixture,
     ground-truth array is the same, bit for bit, as with the whole scene synced."""
     scene, out, description = request.getfixturevalue(fixture)
     geometry = SceneGeometry(description, scene)
-    support = geometry.view_support(0, 1, INTR.K, INTR.width, INTR.height)
+    support = geometry.view_support(0, 1, Camera(INTR))
     assert (len(support) < len(geometry.meshes[0].vertices)) == beyond_view  # breathing: a grid wider than the view
     whole = tmp_path / "whole"
     render_dataset(scene, whole, samples=1, denoise="none", progress=False, view_culling=False)

@@ -1,4 +1,9 @@
-"""The stereo endoscope: a rectified pair sharing K, the right eye +baseline along the left x axis."""
+"""The stereo endoscope: two cameras and the transform between them.
+
+``X_right = R X_left + T`` (as ``cv2.stereoCalibrate`` returns them). The default, a rectified pair, is
+Blender multiview PARALLEL with pivot LEFT: both eyes share the left camera, R = I, T = (-B, 0, 0), so the
+right eye sits +B along the left eye's x axis.
+"""
 
 from __future__ import annotations
 
@@ -6,52 +11,117 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.capture.camera import Intrinsics
 
 #: da Vinci-class stereo endoscope: 5 mm baseline; 512x256 as in the VisionBlender dataset.
 DEFAULT_BASELINE = 0.005
 DEFAULT_SIZE = (512, 256)
 DEFAULT_FOV_X_DEG = 70.0
+#: R must be a rotation within this (max entry of R^T R - I, and |det R - 1|).
+ROTATION_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
 class StereoRig:
-    """Rectified stereo pair (Blender multiview PARALLEL, pivot LEFT): both eyes share ``intrinsics``.
+    """A stereo pair: the ``left`` camera (an ``Intrinsics`` is taken as a distortion-free camera), the
+    ``right`` one (None: the same as the left) and ``R``, ``T`` (None: I and (-baseline, 0, 0)).
 
-    ``clip_start``/``clip_end`` (metres) suit an endoscope working 1-30 cm from tissue.
+    ``baseline`` is |T| (given T, it is derived from it). ``clip_start``/``clip_end`` (metres) suit an
+    endoscope working 1-30 cm from tissue.
     """
 
-    intrinsics: Intrinsics
+    left: Camera
     baseline: float = DEFAULT_BASELINE
     clip_start: float = 0.001
     clip_end: float = 1.0
+    right: Camera | None = None
+    R: tuple | None = None
+    T: tuple | None = None
+
+    def __post_init__(self):
+        if isinstance(self.left, Intrinsics):
+            object.__setattr__(self, "left", Camera(self.left))
+        if self.right is None:
+            object.__setattr__(self, "right", self.left)
+        elif isinstance(self.right, Intrinsics):
+            object.__setattr__(self, "right", Camera(self.right))
+        R = np.eye(3) if self.R is None else np.asarray(self.R, dtype=np.float64).reshape(3, 3)
+        T = (np.array([-float(self.baseline), 0.0, 0.0]) if self.T is None
+             else np.asarray(self.T, dtype=np.float64).reshape(3))
+        object.__setattr__(self, "R", tuple(map(tuple, R.tolist())))
+        object.__setattr__(self, "T", tuple(T.tolist()))
+        object.__setattr__(self, "baseline", float(np.linalg.norm(T)))
 
     @classmethod
     def endoscope(
         cls, width: int = DEFAULT_SIZE[0], height: int = DEFAULT_SIZE[1], fov_x_deg: float = DEFAULT_FOV_X_DEG,
         baseline: float = DEFAULT_BASELINE,
     ) -> StereoRig:
-        return cls(Intrinsics.from_fov(width, height, fov_x_deg), baseline)
+        return cls(Camera(Intrinsics.from_fov(width, height, fov_x_deg)), baseline)
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        """The left eye's pinhole part."""
+        return self.left.intrinsics
+
+    def camera(self, eye: str) -> Camera:
+        return self.left if eye == "left" else self.right
+
+    @property
+    def rectified(self) -> bool:
+        """Both eyes are one distortion-free camera side by side along x (R = I, T = (-B, 0, 0))."""
+        return (self.left.is_pinhole and self.right == self.left and np.array_equal(self.R, np.eye(3))
+                and self.T[1] == 0.0 and self.T[2] == 0.0 and self.T[0] < 0)
 
     @property
     def T_left_right(self) -> np.ndarray:
-        """Pose of the right eye in the left eye's (OpenCV) frame."""
-        T = np.eye(4)
-        T[0, 3] = self.baseline
-        return T
+        """Pose of the right eye in the left eye's (OpenCV) frame: the inverse of [R | T]."""
+        R, T = np.asarray(self.R), np.asarray(self.T)
+        out = np.eye(4)
+        out[:3, :3] = R.T
+        out[:3, 3] = -R.T @ T
+        return out
 
     def right_pose(self, T_world_left: np.ndarray) -> np.ndarray:
         """T_world_cam of the right eye from the left eye's T_world_cam."""
         return np.asarray(T_world_left, dtype=np.float64) @ self.T_left_right
 
     def resized(self, width: int, height: int) -> StereoRig:
-        return StereoRig(self.intrinsics.resized(width, height), self.baseline, self.clip_start, self.clip_end)
+        """Both eyes sampled at ``width`` x ``height`` (the right eye scaled as the left)."""
+        sx, sy = width / self.left.width, height / self.left.height
+        right = self.right.resized(round(self.right.width * sx), round(self.right.height * sy))
+        return StereoRig(self.left.resized(width, height), self.baseline, self.clip_start, self.clip_end,
+                         right, self.R, self.T)
+
+    def check(self, source: str = "rig") -> list[str]:
+        """Raise ``UserError`` for a bad rig (a camera, or an R that is not a rotation); return warnings."""
+        from rgbd2scene.errors import UserError
+
+        R, T = np.asarray(self.R), np.asarray(self.T)
+        if not (np.isfinite(R).all() and np.isfinite(T).all()):
+            raise UserError(f"{source}: R and T must be finite")
+        if np.abs(R.T @ R - np.eye(3)).max() > ROTATION_TOLERANCE or abs(np.linalg.det(R) - 1) > ROTATION_TOLERANCE:
+            raise UserError(f"{source}: R is not a rotation (R^T R - I up to {np.abs(R.T @ R - np.eye(3)).max():.2g}, "
+                            f"det {np.linalg.det(R):.6g})")
+        if not self.baseline > 0:
+            raise UserError(f"{source}: the baseline |T| must be positive")
+        warnings = [self.left.check(f"{source} (left)")]
+        if self.right is not self.left:
+            warnings.append(self.right.check(f"{source} (right)"))
+        return [w for w in warnings if w]
 
     def to_dict(self) -> dict:
-        return {"intrinsics": self.intrinsics.to_dict(), "K": self.intrinsics.K.tolist(),
-                "baseline": self.baseline, "clip_start": self.clip_start, "clip_end": self.clip_end}
+        out = {"intrinsics": self.left.intrinsics.to_dict(), "K": self.left.K.tolist(),
+               "baseline": self.baseline, "clip_start": self.clip_start, "clip_end": self.clip_end}
+        if not self.rectified:  # the rectified default stays as before (scene.json files of earlier versions)
+            out.update({"D": list(self.left.D), "right": self.right.to_dict(), "R": [list(r) for r in self.R],
+                        "T": list(self.T)})
+        return out
 
     @classmethod
     def from_dict(cls, d: dict) -> StereoRig:
-        return cls(Intrinsics.from_dict(d["intrinsics"]), float(d["baseline"]), float(d["clip_start"]),
-                   float(d["clip_end"]))
+        left = Camera(Intrinsics.from_dict(d["intrinsics"]), d.get("D", ()))
+        right = Camera.from_dict(d["right"]) if "right" in d else None
+        return cls(left, float(d["baseline"]), float(d["clip_start"]), float(d["clip_end"]), right,
+                   d.get("R"), d.get("T"))

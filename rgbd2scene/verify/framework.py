@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from rgbd2scene.conventions import pixel_rays
+from rgbd2scene.camera import Camera
 from rgbd2scene.dataset.layout import FramePaths, frame_paths
 from rgbd2scene.errors import UserError
 from rgbd2scene.groundtruth.schema import SCHEMA, surface_mask
@@ -289,6 +289,13 @@ class EyeFrame:
         return self.gt["T_world_cam"]
 
     @cached_property
+    def camera(self) -> Camera:
+        """This eye's camera: the npz's K and D (none: a pinhole) at the dataset's image size."""
+        height, width = self.run.shape
+        D = self.gt.get("D")
+        return Camera.from_K(self.K, width, height, () if D is None else np.asarray(D, dtype=np.float64))
+
+    @cached_property
     def depth(self) -> np.ndarray:
         """Planar depth, float64."""
         return self.gt["depth"].astype(np.float64)
@@ -312,8 +319,8 @@ class EyeFrame:
 
     @cached_property
     def rays(self) -> np.ndarray:
-        """Camera-frame rays (unit z) through every pixel centre, with this eye's K."""
-        return pixel_rays(*self.run.shape, self.K)
+        """Camera-frame rays (unit z) through every pixel centre, of this eye's camera (NaN: no ray)."""
+        return self.camera.rays()
 
     # -- the oracle --
     @cached_property
@@ -326,8 +333,7 @@ class EyeFrame:
     @cached_property
     def cast(self) -> RayCast:
         """The oracle's ray cast of this eye at this frame (only for checks that need the oracle)."""
-        height, width = self.run.shape
-        return self.run.oracle.cast(self.index, self.K, self.T_world_cam, width, height)
+        return self.run.oracle.cast(self.index, self.camera, self.T_world_cam)
 
     def moved_points(self, other: int) -> np.ndarray | None:
         """World positions at frame ``other`` of the surface points under each pixel, when the oracle follows
@@ -335,8 +341,7 @@ class EyeFrame:
         follow = getattr(self.run.oracle, "moved_points", None)
         if follow is None:
             return None
-        height, width = self.run.shape
-        return follow(self.index, other, self.K, self.T_world_cam, width, height)
+        return follow(self.index, other, self.camera, self.T_world_cam)
 
     # -- other frames of this eye --
     def pose(self, index: int) -> np.ndarray | None:

@@ -124,14 +124,13 @@ def path_coverage(vertices, triangles, rig: StereoRig, path: CameraPath, scale: 
     from rgbd2scene.groundtruth.raycast import raycaster
 
     rc = rc if rc is not None else raycaster(vertices, triangles)
-    intr = rig.intrinsics
     if scale != 1.0:
-        intr = intr.resized(max(2, int(round(intr.width * scale))), max(2, int(round(intr.height * scale))))
-    K = intr.K
+        intr = rig.intrinsics
+        rig = rig.resized(max(2, int(round(intr.width * scale))), max(2, int(round(intr.height * scale))))
     out = np.zeros((path.frames, 2))
     for f, T in enumerate(path.T_world_cam):
         for eye, pose in enumerate((T, rig.right_pose(T))):
-            depth = rc.cast(K, intr.width, intr.height, pose, normals="none")["depth"]
+            depth = rc.cast(rig.camera(("left", "right")[eye]), pose, normals="none")["depth"]
             with np.errstate(invalid="ignore"):
                 ok = (depth >= rig.clip_start) & (depth <= rig.clip_end)
             out[f, eye] = ok.mean()
