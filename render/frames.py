@@ -55,10 +55,12 @@ import numpy as np
 
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.scene.raw import raw_render_plan
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
 from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
 
@@ -151,7 +153,14 @@ class Renderer:
         from render.scene_builder import set_intrinsics
 
         self.rig = description.rig
-        set_intrinsics(scene, camera, self.rig.intrinsics)
+        # a raw pair (distortion, unequal eyes) is rendered as its rectified pair covering every raw pixel's
+        # ray, then resampled into the raw grid (rgbd2scene.scene.raw); the camera then follows the model's
+        # (rectified) poses instead of the blend's keys, as for a pair rectified from a raw rig (--rectify)
+        self.raw = None if self.rig.rectified else raw_render_plan(self.rig)
+        self.drive_camera = self.raw is not None or bool(options.rectify)
+        if self.drive_camera:
+            camera.animation_data_clear()
+        set_intrinsics(scene, camera, self.raw.intrinsics if self.raw else self.rig.intrinsics)
         self.K = self.rig.intrinsics.K
         self.baseline = self.rig.baseline
         _check_blend_agrees(scene, camera, description, blend)
@@ -183,7 +192,9 @@ class Renderer:
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
         self.maps = options.maps
         self.passes = passes_needed(self.maps)
-        self.gt_material = _gt_material(bpy) if self.maps else None
+        # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check)
+        self.from_model = bool(self.maps) and options.gt_source == "model"
+        self.gt_material = _gt_material(bpy) if self.maps and not self.from_model else None
         self.view_layer = scene.view_layers[0]
         for layer in scene.view_layers[1:]:
             layer.use = False
@@ -194,8 +205,11 @@ class Renderer:
         # culling needs the parts' geometry files (a scene folder may hold only its .blend: rendered whole)
         cull = bool(options.view_culling) and all((Path(scene_dir) / p.geometry).is_file()
                                                   for _, p in description.parts())
-        self.geometry = SceneGeometry(description, scene_dir) if self.maps and (self.moving or cull) else None
-        self.view_masks = self._add_view_masks() if self.maps and cull else []
+        need_geometry = self.maps and (self.moving or cull or self.from_model)
+        self.geometry = SceneGeometry(description, scene_dir) if need_geometry else None
+        self.model_gt = (ModelGroundTruth(self.geometry, description, self.frames, self.maps) if self.from_model
+                         else None)
+        self.view_masks = self._add_view_masks() if self.maps and cull and not self.from_model else []
 
     def _add_view_masks(self) -> list[ViewMask]:
         """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group
@@ -273,11 +287,33 @@ class Renderer:
 
     # -- one frame --
 
+    def set_frame(self, index: int) -> None:
+        """Go to frame ``index``: the blend's animation, and the camera at the model's pose when it follows the
+        model (:attr:`drive_camera`); then check every pose against the model."""
+        self.scene.frame_set(index)
+        if self.drive_camera:
+            from mathutils import Matrix
+
+            T = self.description.camera_pose(index)
+            if self.raw is not None:
+                T = self.raw.rectified_pose(T)
+            self.camera.matrix_world = Matrix(blender_pose_from_opencv(T).tolist())
+        _check_pose(self.scene, self.camera, self.description, index, camera_keyed=not self.drive_camera)
+
     def render_rgb(self, index: int) -> None:
         self.configure_rgb()
         files = self._render(self.work / f"{ds.frame_name(index)}_rgb", ".png")
         for eye, src in files.items():
-            ds.install_file(src, ds.frame_paths(self.out_dir, eye, index).rgb)
+            dst = ds.frame_paths(self.out_dir, eye, index).rgb
+            if self.raw is None:
+                ds.install_file(src, dst)
+                continue
+            import cv2
+
+            # the rectified render -> the raw grid (8-bit sRGB values resampled bilinearly)
+            rectified = cv2.cvtColor(cv2.imread(str(src), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            ds.write_rgb(dst, self.raw.resample(rectified, eye))
+            src.unlink()
 
     def render_data(self, index: int) -> dict:
         """The data render of the current frame (Blender side): EXR files; poses and tracked objects from
@@ -313,7 +349,7 @@ class Renderer:
                                     passes.get("index"), self.K, job["poses"][eye], self.baseline,
                                     first=index == 0, last=index == self.frames - 1,
                                     object_ids=job["object_ids"], object_poses=job["object_poses"],
-                                    maps=self.maps)
+                                    maps=self.maps, D=self.rig.camera(eye).distortion)
                 surface = np.isfinite(gt.get("depth", depth_from_pass(passes["depth"])))
                 for key, flags in from_model.get(eye, {}).items():
                     gt[key] = flags & surface
@@ -387,10 +423,10 @@ def _check_blend_agrees(scene, camera, description: SceneDescription, blend: Pat
         raise WorkerError(f"{blend}: no object with instance id(s) {missing} of the scene model")
 
 
-def _check_pose(scene, camera, description: SceneDescription, index: int) -> None:
-    """The camera and every posed part Blender renders (keyed on their tracks) are at the model's poses of
-    this frame."""
-    checks = [("camera", camera, blender_pose_from_opencv(description.camera_pose(index)))]
+def _check_pose(scene, camera, description: SceneDescription, index: int, camera_keyed: bool = True) -> None:
+    """The camera (when ``camera_keyed``) and every posed part Blender renders (keyed on their tracks) are at
+    the model's poses of this frame."""
+    checks = [("camera", camera, blender_pose_from_opencv(description.camera_pose(index)))] if camera_keyed else []
     by_id = {o.pass_index: o for o in scene.objects if o.type == "MESH"}
     checks += [(f"part {p.id}", by_id[p.id], p.pose_at(index)) for _, p in description.parts() if p.poses is not None]
     for what, obj, expected in checks:
@@ -413,6 +449,36 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _rgb_with_model_gt(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: list[int], say,
+                       scratch: Path) -> None:
+    """RGB renders by Blender while one thread computes and writes the frames' ground truth from the scene
+    model (:class:`~rgbd2scene.groundtruth.model_maps.ModelGroundTruth`; no data render). A frame is done
+    when both are."""
+
+    def write(index: int) -> tuple[float, float]:
+        t0, c0 = time.perf_counter(), _cpu_s()
+        renderer.model_gt.write(out_dir, index, scratch)
+        return time.perf_counter() - t0, _cpu_s() - c0
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        jobs = {index: pool.submit(write, index) for index in need_gt}
+        for index in need_rgb:
+            t0, c0 = time.perf_counter(), _cpu_s()
+            renderer.set_frame(index)
+            renderer.render_rgb(index)
+            renderer.free_images()
+            t_rgb, c_rgb = time.perf_counter() - t0, _cpu_s() - c0
+            t_gt = 0.0
+            if index in jobs:
+                t0 = time.perf_counter()
+                jobs.pop(index).result()
+                t_gt = time.perf_counter() - t0  # the wait for the thread: what the ground truth added
+            say(frame_line(index, "done", t_rgb + t_gt, cpu=c_rgb, rgb=t_rgb, gt=t_gt, rss=_rss_mb()))
+        for index in sorted(jobs):
+            t_gt, c_gt = jobs[index].result()
+            say(frame_line(index, "done", t_gt, cpu=c_gt, rgb=0.0, gt=t_gt, rss=_rss_mb()))
+
+
 def render_task(bpy, task: Task, say) -> None:
     """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
     t0 = time.perf_counter()
@@ -430,14 +496,17 @@ def render_task(bpy, task: Task, say) -> None:
         need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i, description.deforming)]
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
+        if renderer.model_gt is not None:
+            _rgb_with_model_gt(renderer, out_dir, need_rgb, need_gt, say, scratch)
+            return
+        # Blender's passes (--gt-source blender, the cross-check of the model's maps).
         # Two phases: every RGB render of the chunk, then every data render. Switching between the two
         # configurations makes Cycles rebuild its scene (the material override changes the shaders), so
         # alternating them per frame costs ~0.1 s more per frame than running each kind back to back.
         spent: dict[int, tuple[float, float]] = {}
         for index in need_rgb:
             t0, c0 = time.perf_counter(), _cpu_s()
-            renderer.scene.frame_set(index)
-            _check_pose(renderer.scene, renderer.camera, description, index)
+            renderer.set_frame(index)
             renderer.render_rgb(index)
             renderer.free_images()
             spent[index] = (time.perf_counter() - t0, _cpu_s() - c0)
@@ -455,8 +524,7 @@ def render_task(bpy, task: Task, say) -> None:
             for index in need_gt + [None]:
                 if index is not None:
                     model = model_pool.submit(renderer.model_maps, index)
-                    renderer.scene.frame_set(index)
-                    _check_pose(renderer.scene, renderer.camera, description, index)
+                    renderer.set_frame(index)
                     job = renderer.render_data(index)
                     renderer.free_images()
                     pending.append((index, pool.submit(renderer.write_gt, job, model)))

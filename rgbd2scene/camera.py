@@ -260,3 +260,31 @@ class Camera:
             return (f"{source}: the lens model folds at normalised radius {self.fold_radius:.3g}; "
                     f"{100 * (1 - share):.1f} % of the pixels (beyond the fold) see nothing")
         return None
+
+
+def load_camera(path) -> Camera:
+    """A scope camera from a camera JSON (CONVENTIONS section 7): the intrinsics of
+    :func:`~rgbd2scene.capture.camera.load_camera_json` and an optional ``"distortion"`` (OpenCV order);
+    checked (:meth:`Camera.check`: its warning, for a lens folding inside the image, is printed)."""
+    from rgbd2scene.capture.camera import load_camera_json
+    from rgbd2scene.files.atomic import read_json_object
+
+    intrinsics, _ = load_camera_json(path)
+    D = read_json_object(path, "JSON camera file").get("distortion", ())
+    try:
+        D = np.asarray(D if D is not None else (), dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise UserError(f"{path}: distortion must be a list of numbers, got {D!r}") from None
+    if len(D) not in DISTORTION_LENGTHS:
+        raise UserError(f"{path}: distortion must have 4, 5, 8, 12 or 14 coefficients, got {len(D)}")
+    camera = Camera(intrinsics, D)
+    warn(camera.check(str(path)))
+    return camera
+
+
+def warn(message: str | None) -> None:
+    """Print a warning line on stderr (nothing for None)."""
+    if message:
+        import sys
+
+        print(f"warning: {message}", file=sys.stderr)

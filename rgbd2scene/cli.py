@@ -265,7 +265,7 @@ def cmd_scene(args) -> int:
                         "--mesh-dir (a mesh folder)")
     record = build_scene_folder(out, mesh, record, options, config=config)
     cov = record["coverage"]
-    print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
+    print(f"scene: {record['scene']['path']['frames']} frames ({record['scene']['path']['kind']}), coverage min "
           f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {time.perf_counter() - t0:.1f}s -> "
           f"{out}/scene.blend")
     for item in record.get("objects", {}).get("instruments", []):

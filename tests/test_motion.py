@@ -1,7 +1,8 @@
 """Moving and deforming surfaces: ground truth of breathing tissue and of an object sliding over it.
 
-Scenes are scene models built and rendered through the one Blender entry point (64x32, a few frames). The
-references are independent of Blender: the deformation formula and the model's poses in numpy, ray casting
+Scenes are scene models built and rendered through the one Blender entry point (64x32, a few frames), with
+the ground truth from Blender's passes (``gt_source="blender"``, the cross-check of the scene model's maps,
+which ``tests/test_model_gt.py`` compares). The references are independent of Blender: the deformation formula and the model's poses in numpy, ray casting
 the model (``SceneGeometry``), and the other maps of the same dataset.
 """
 
@@ -90,7 +91,7 @@ def breathing(tmp_path_factory):
     description = SceneDescription(rig, path, Light(), [tissue])
     scene = _build(folder, description)
     out = tmp_path_factory.mktemp("breathing_ds") / "ds"
-    render_dataset(scene, out, samples=1, denoise="none", progress=False)
+    render_dataset(scene, out, samples=1, denoise="none", progress=False, gt_source="blender")
     return scene, out, description
 
 
@@ -194,7 +195,7 @@ def sliding(tmp_path_factory):
     description = SceneDescription(rig, path, Light(), [tissue_object("as_captured", texture=None), slider])
     scene = _build(folder, description)
     out = tmp_path_factory.mktemp("sliding_ds") / "ds"
-    render_dataset(scene, out, samples=1, denoise="none", progress=False)
+    render_dataset(scene, out, samples=1, denoise="none", progress=False, gt_source="blender")
     return scene, out, description
 
 
@@ -237,7 +238,8 @@ def test_data_renders_of_what_is_in_view_equal_those_of_the_whole_scene(fixture,
     support = geometry.view_support(0, 1, Camera(INTR))
     assert (len(support) < len(geometry.meshes[0].vertices)) == beyond_view  # breathing: a grid wider than the view
     whole = tmp_path / "whole"
-    render_dataset(scene, whole, samples=1, denoise="none", progress=False, view_culling=False)
+    render_dataset(scene, whole, samples=1, denoise="none", progress=False, view_culling=False,
+                   gt_source="blender")
     for eye in ("left", "right"):
         for f in range(FRAMES):
             _, culled = ds.read_frame(out, eye, f, rgb=False)

@@ -87,7 +87,7 @@ def test_gt_from_passes_arrays():
     first = gt_from_passes(depth, None, vector, None, K, T, BASELINE, first=True, maps=("flow_backward",))
     last = gt_from_passes(depth, None, vector, None, K, T, BASELINE, last=True, maps=("flow_forward",))
     assert np.isnan(first["flow_backward"]).all() and np.isnan(last["flow_forward"]).all()
-    assert set(first) == {"flow_backward", "K", "T_world_cam", "object_ids", "object_poses"}
+    assert set(first) == {"flow_backward", "K", "D", "T_world_cam", "object_ids", "object_poses"}
     with pytest.raises(ValueError, match="normals"):
         gt_from_passes(depth, None, None, None, K, T, BASELINE, maps=("normals",))
 

@@ -125,3 +125,110 @@ class StereoRig:
         right = Camera.from_dict(d["right"]) if "right" in d else None
         return cls(left, float(d["baseline"]), float(d["clip_start"]), float(d["clip_end"]), right,
                    d.get("R"), d.get("T"))
+
+
+@dataclass(frozen=True)
+class Rectification:
+    """``cv2.stereoRectify`` of a rig at ``alpha=0`` with zero disparity at infinity: the rectified eyes'
+    rotations R1, R2 (rectified from raw camera frame), projections P1, P2 (3x4) and the disparity-to-depth
+    matrix Q."""
+
+    R1: np.ndarray
+    R2: np.ndarray
+    P1: np.ndarray
+    P2: np.ndarray
+    Q: np.ndarray
+
+
+def rectification(rig: StereoRig) -> Rectification:
+    """The rectified pair of ``rig`` as ``cv2.stereoRectify(alpha=0)`` defines it (CONVENTIONS 1.2, section 2).
+
+    A rectified rig is its own rectification: R1 = R2 = I, P1 = [K | 0], P2 = [K | (-fx B, 0, 0)].
+    """
+    import cv2
+
+    if rig.rectified:
+        K = rig.left.K
+        P1 = np.hstack([K, np.zeros((3, 1))])
+        P2 = P1.copy()
+        P2[0, 3] = -K[0, 0] * rig.baseline
+        fx, cx, cy = K[0, 0], K[0, 2], K[1, 2]
+        Q = np.array([[1, 0, 0, -cx], [0, 1, 0, -cy], [0, 0, 0, fx], [0, 0, 1 / rig.baseline, 0]])
+        return Rectification(np.eye(3), np.eye(3), P1, P2, Q)
+    size = (rig.left.width, rig.left.height)
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(rig.left.K, rig.left.distortion, rig.right.K, rig.right.distortion,
+                                                size, np.asarray(rig.R), np.asarray(rig.T),
+                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    return Rectification(R1, R2, P1, P2, Q)
+
+
+#: Keys of an OpenCV FileStorage stereo calibration (``--scope-calib`` YAML/XML).
+OPENCV_CALIB_KEYS = ("K1", "D1", "K2", "D2", "R", "T")
+
+
+def read_scope_calibration(path, size: tuple[int, int] | None = None) -> StereoRig:
+    """The rig of a stereo calibration file (``--scope-calib``): two eyes with their own K and D, and R, T
+    (``X_right = R X_left + T``, metres).
+
+    Accepts an OpenCV FileStorage file (``.yaml``/``.yml``/``.xml``: ``K1 D1 K2 D2 R T`` and ``image_width``,
+    ``image_height`` or ``size``), a calibration JSON or a Hamlyn-style folder (as ``--stereo-calib`` reads
+    them; a folder takes its image size from ``size``). One-line :class:`UserError` naming the file and
+    the problem: missing keys, an R that is not a rotation, non-finite values, a lens folding near the
+    centre. A lens folding inside the image is a printed warning.
+    """
+    from pathlib import Path
+
+    from rgbd2scene.camera import warn
+    from rgbd2scene.capture.stereo import make_calibration, read_stereo_calibration
+    from rgbd2scene.errors import UserError
+
+    path = Path(path)
+    if not path.exists():
+        raise UserError(f"{path}: calibration file not found")
+    try:
+        if path.suffix.lower() in (".yaml", ".yml", ".xml"):
+            arrays, file_size = _read_opencv_calibration(path)
+            width, height = file_size or size or (0, 0)
+            if not width:
+                raise ValueError("no image size (image_width and image_height)")
+            calib = make_calibration(arrays["K1"], arrays["D1"], arrays["K2"], arrays["D2"], arrays["R"],
+                                     arrays["T"], width, height)
+        else:
+            calib = read_stereo_calibration(path, size)
+    except (ValueError, OSError) as exc:
+        raise UserError(f"{path}: {exc}") from None
+    rig = StereoRig(Camera(Intrinsics.from_K(calib.K_left, calib.width, calib.height), calib.D_left), 0.0,
+                    right=Camera(Intrinsics.from_K(calib.K_right, calib.width, calib.height), calib.D_right),
+                    R=calib.R, T=calib.T)
+    for message in rig.check(str(path)):
+        warn(message)
+    return rig
+
+
+def _read_opencv_calibration(path) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
+    """The matrices and the image size (None when absent) of an OpenCV FileStorage calibration."""
+    import cv2
+
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise ValueError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1]})") from None
+    try:
+        if not fs.isOpened():
+            raise ValueError("not an OpenCV FileStorage file")
+        arrays, missing = {}, []
+        for key in OPENCV_CALIB_KEYS:
+            node = fs.getNode(key)
+            m = None if node.empty() else node.mat()
+            if m is None:
+                missing.append(key)
+            else:
+                arrays[key] = np.asarray(m, dtype=np.float64)
+        if missing:
+            raise ValueError(f"missing key(s) {', '.join(missing)} (a calibration holds "
+                             f"{' '.join(OPENCV_CALIB_KEYS)} and image_width, image_height)")
+        w, h = fs.getNode("image_width"), fs.getNode("image_height")
+        size = (int(w.real()), int(h.real())) if not (w.empty() or h.empty()) else None
+        return arrays, size
+    finally:
+        fs.release()

@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics, load_camera_json
+from rgbd2scene.camera import load_camera
+from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import link_or_copy, read_json_object, write_json
 from rgbd2scene.files.images import read_image
@@ -33,13 +34,9 @@ from rgbd2scene.scene.paths import (
     make_path,
     path_coverage,
 )
-from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
+from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig, read_scope_calibration
 from rgbd2scene.stages.blender import Task, run_task
 from rgbd2scene.stages.render import parse_size
-
-
-def _scope_camera(path: str) -> Intrinsics:
-    return load_camera_json(path)[0]
 
 
 @dataclass
@@ -49,7 +46,12 @@ class SceneOptions:
     size: tuple[int, int] = option(DEFAULT_SIZE, "endoscope image size WxH", parse=parse_size, metavar="WxH")
     fov_x_deg: float = option(DEFAULT_FOV_X_DEG, "horizontal field of view, degrees", flag="--fov")
     scope_camera: str | None = option(None, "endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, "
-                                      "height); overrides --size and --fov", file=True)
+                                      "height, optionally distortion: OpenCV's D; both eyes share it, --baseline "
+                                      "apart); overrides --size and --fov", file=True)
+    scope_calib: str | None = option(None, "two calibrated scope eyes: an OpenCV FileStorage YAML (K1 D1 K2 D2 R "
+                                     "T, image_width, image_height), a calibration JSON or a Hamlyn folder "
+                                     "(image size from --size); overrides --scope-camera, --size, --fov and "
+                                     "--baseline", file=True, metavar="FILE")
     baseline: float = option(DEFAULT_BASELINE, "stereo baseline, metres")
     path: str = option("scan", "generated camera path", choices=tuple(PATH_GENERATORS))
     path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)", file=True)
@@ -74,8 +76,10 @@ class SceneOptions:
         """The stereo rig; :class:`OptionError` naming the field when a value is implausible."""
         if self.baseline <= 0 or self.baseline > 0.1:
             raise OptionError("baseline", f"{self.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
+        if self.scope_calib is not None:
+            return read_scope_calibration(self.scope_calib, self.size)
         if self.scope_camera is not None:
-            return StereoRig(_scope_camera(self.scope_camera), self.baseline)
+            return StereoRig(load_camera(self.scope_camera), self.baseline)
         intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
         intr.check("--fov/--size")
         return StereoRig(intr, self.baseline)

@@ -29,7 +29,7 @@ import numpy as np
 from rgbd2scene.camera import Camera
 from rgbd2scene.dataset.layout import FramePaths, frame_paths
 from rgbd2scene.errors import UserError
-from rgbd2scene.groundtruth.schema import SCHEMA, surface_mask
+from rgbd2scene.groundtruth.schema import DISTORTION_LENGTHS, SCHEMA, surface_mask
 
 if TYPE_CHECKING:
     from rgbd2scene.dataset.reader import Dataset
@@ -226,7 +226,8 @@ def check_keys(gt: dict[str, np.ndarray], height: int, width: int) -> KeyCheck:
         a = gt[key]
         if key == "object_ids" and a.ndim == 1:
             count = a.shape[0]
-        want = spec.expected_shape(height, width, count if count is not None else a.shape[0] if a.ndim else None)
+        d = a.shape[0] if key == "D" and a.ndim == 1 and a.shape[0] in DISTORTION_LENGTHS else None
+        want = spec.expected_shape(height, width, count if count is not None else a.shape[0] if a.ndim else None, d)
         if str(a.dtype) != spec.dtype:
             issues.append(f"{key} is {a.dtype}, not {spec.dtype}")
             if not np.issubdtype(a.dtype, np.number):
