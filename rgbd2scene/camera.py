@@ -282,9 +282,14 @@ def load_camera(path) -> Camera:
     return camera
 
 
+_WARNED: set[str] = set()
+
+
 def warn(message: str | None) -> None:
-    """Print a warning line on stderr (nothing for None)."""
-    if message:
+    """Print a warning line on stderr, once per process (nothing for None): a camera is checked by each stage
+    that builds it."""
+    if message and message not in _WARNED:
         import sys
 
+        _WARNED.add(message)
         print(f"warning: {message}", file=sys.stderr)

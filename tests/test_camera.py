@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -148,3 +149,43 @@ def test_the_capture_pose_sees_its_own_grid_mesh_everywhere():
     assert np.isnan(raw["t"]).any()  # the Open3D misses this guards against happen here
     assert np.isfinite(cast["depth"]).all()
     assert np.abs(cast["depth"] - depth).max() < 1e-6 * depth.max()
+
+
+def test_a_scope_camera_json_with_distortion(tmp_path, capsys):
+    from rgbd2scene.camera import load_camera
+
+    path = tmp_path / "scope.json"
+    path.write_text(json.dumps({"width": 128, "height": 96, "fx": 100.0, "fy": 100.0, "cx": 63.5, "cy": 47.5,
+                                "distortion": [-0.5, 0.0, 0.0, 0.0, 0.0]}))
+    camera = load_camera(path)
+    assert camera.D == (-0.5, 0.0, 0.0, 0.0, 0.0)
+    load_camera(path)  # the same lens again: warned once
+    err = capsys.readouterr().err
+    assert err.count("warning:") == 1 and "fold" in err
+    path.write_text(json.dumps({"width": 128, "height": 96, "fx": 96.0, "fy": 96.0, "cx": 63.5, "cy": 47.5,
+                                "distortion": [-3.0, 0.0, 0.0, 0.0, 0.0]}))
+    with pytest.raises(UserError, match="folds"):
+        load_camera(path)
+    path.write_text(json.dumps({"width": 128, "height": 96, "fx": 96.0, "fy": 96.0, "cx": 63.5, "cy": 47.5,
+                                "distortion": [0.1, 0.2, 0.3]}))
+    with pytest.raises(UserError, match="coefficients"):
+        load_camera(path)
+
+
+def test_raw_render_plan_covers_every_ray_and_blackens_beyond_the_fold():
+    from rgbd2scene.scene.raw import raw_render_plan
+
+    fold = Camera(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), (-0.5, 0.0, 0.0, 0.0, 0.0))
+    plan = raw_render_plan(StereoRig(fold, 0.004))
+    map_x, map_y = plan.maps["left"]
+    has = plan.has_ray["left"]
+    intr = plan.intrinsics
+    assert (map_x[has] >= 0).all() and (map_x[has] <= intr.width - 1).all()
+    assert (map_y[has] >= 0).all() and (map_y[has] <= intr.height - 1).all()
+    # a rectified render of a pinhole's own image (u, v coordinates) resamples to each raw pixel's ray
+    v, u = np.mgrid[0:intr.height, 0:intr.width].astype(np.float32)
+    raw_u = plan.resample(u, "left")
+    rays = fold.rays()
+    # cv2.remap interpolates with 1/32-pixel weights: the images' resampling is that fine, the maps are exact
+    np.testing.assert_allclose(raw_u[has], intr.fx * rays[has][:, 0] + intr.cx, atol=1 / 32)
+    assert (raw_u[~has] == 0).all()

@@ -2,8 +2,9 @@
 
 Scenes are scene models built and rendered through the one Blender entry point (64x32, a few frames), with
 the ground truth from Blender's passes (``gt_source="blender"``, the cross-check of the scene model's maps,
-which ``tests/test_model_gt.py`` compares). The references are independent of Blender: the deformation formula and the model's poses in numpy, ray casting
-the model (``SceneGeometry``), and the other maps of the same dataset.
+which ``tests/test_model_gt.py`` compares). The references are independent of Blender: the deformation
+formula and the model's poses in numpy, ray casting the model (``SceneGeometry``), and the other maps of the
+same dataset.
 """
 
 from __future__ import annotations

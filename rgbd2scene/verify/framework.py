@@ -183,6 +183,16 @@ class VerifyRun:
         return self.dataset.frames - 1
 
     @property
+    def rig(self):
+        """The rig as rendered (dataset.json's ``camera``): both eyes' cameras and R, T."""
+        return self.dataset.rig
+
+    @property
+    def rectified(self) -> bool:
+        """A rectified pair (disparity); otherwise raw (correspondence, CONVENTIONS 1.2)."""
+        return self.rig.rectified
+
+    @property
     def no_pixels_note(self) -> str:
         """Why a declared metric got no value."""
         return "no pixels to compare" + ("; moving objects are left out" if self.moving else "")
@@ -213,13 +223,15 @@ class KeyCheck:
     bad_keys: frozenset[str]
 
 
-def check_keys(gt: dict[str, np.ndarray], height: int, width: int) -> KeyCheck:
-    """Missing keys, wrong dtypes and wrong shapes of a ground-truth dict (``SCHEMA``)."""
+def check_keys(gt: dict[str, np.ndarray], height: int, width: int, rectified: bool = True) -> KeyCheck:
+    """Missing keys, wrong dtypes and wrong shapes of a ground-truth dict (``SCHEMA``); a raw pair
+    (``rectified`` False) has ``correspondence`` in place of ``disparity``."""
     issues, bad = [], set()
     count = None  # object count N, from object_ids
+    swap = {} if rectified else {"disparity": True, "correspondence": False}  # key -> optional
     for key, spec in SCHEMA.items():
         if key not in gt:
-            if not spec.optional:
+            if not swap.get(key, spec.optional):
                 issues.append(f"missing key {key}")
                 bad.add(key)
             continue
@@ -268,7 +280,7 @@ class EyeFrame:
 
     @cached_property
     def key_check(self) -> KeyCheck:
-        return check_keys(self.gt or {}, *self.run.shape)
+        return check_keys(self.gt or {}, *self.run.shape, rectified=self.run.rectified)
 
     @property
     def usable(self) -> bool:
