@@ -457,6 +457,9 @@ def test_bad_inputs_are_user_errors(scene_a, tmp_path):
         render_dataset(scene_a, tmp_path / "out", frames=4, progress=False)
     with pytest.raises(UserError, match="--gt"):
         render_dataset(scene_a, tmp_path / "out", gt="depth,colour", progress=False)
+    with pytest.raises(UserError, match="--size: 100000x100000 needs about .* GiB"):  # a memory estimate
+        render_dataset(scene_a, tmp_path / "huge", size=(100000, 100000), progress=False)
+    assert not (tmp_path / "huge").exists()
     (tmp_path / "afile").write_text("x")
     with pytest.raises(UserError, match="afile"):
         render_dataset(scene_a, tmp_path / "afile", progress=False)

@@ -164,7 +164,9 @@ class Dataset:
                 names = z.files if keys is None else list(keys)
                 missing = [k for k in names if k not in z.files]
                 if missing:
-                    raise UserError(f"{path}: no {', '.join(missing)} in this file (rendered with --gt?)")
+                    hint = ("a raw (distorted) pair has correspondence, not disparity: render --rectify for "
+                            "disparity" if "disparity" in missing and not self.rectified else "rendered with --gt?")
+                    raise UserError(f"{path}: no {', '.join(missing)} in this file ({hint})")
                 names += [k for k in optional if k in z.files and k not in names]
                 return {k: z[k] for k in names}
         except UserError:
