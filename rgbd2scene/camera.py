@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -199,11 +199,9 @@ class Camera:
             return pixel_rays(self.height, self.width, self.K)
         return self._rays.copy()
 
-    @cached_property
+    @property
     def _rays(self) -> np.ndarray:
-        u, v = pixel_grid(self.height, self.width)
-        x, y = self.undistort(u, v)
-        return np.stack([x, y, np.where(np.isfinite(x), 1.0, np.nan)], axis=-1)
+        return _distorted_rays(self)
 
     def backproject(self, depth: np.ndarray) -> np.ndarray:
         """Camera-frame points (H, W, 3) float64 of a planar depth map of this camera (NaN: no surface or no
@@ -260,6 +258,17 @@ class Camera:
             return (f"{source}: the lens model folds at normalised radius {self.fold_radius:.3g}; "
                     f"{100 * (1 - share):.1f} % of the pixels (beyond the fold) see nothing")
         return None
+
+
+@lru_cache(maxsize=8)
+def _distorted_rays(camera: Camera) -> np.ndarray:
+    """The rays of a distorted camera (read-only, shared): computed once per camera, which every frame of a
+    dataset and every stage shares (equal cameras are one key)."""
+    u, v = pixel_grid(camera.height, camera.width)
+    x, y = camera.undistort(u, v)
+    rays = np.stack([x, y, np.where(np.isfinite(x), 1.0, np.nan)], axis=-1)
+    rays.flags.writeable = False
+    return rays
 
 
 def load_camera(path) -> Camera:

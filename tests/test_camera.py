@@ -189,3 +189,16 @@ def test_raw_render_plan_covers_every_ray_and_blackens_beyond_the_fold():
     # cv2.remap interpolates with 1/32-pixel weights: the images' resampling is that fine, the maps are exact
     np.testing.assert_allclose(raw_u[has], intr.fx * rays[has][:, 0] + intr.cx, atol=1 / 32)
     assert (raw_u[~has] == 0).all()
+
+
+def test_the_hamlyn_calibration_folder_is_a_scope_rig():
+    from rgbd2scene.scene.rig import read_scope_calibration
+
+    K, (w, h) = _hamlyn_K()
+    rig = read_scope_calibration(HAMLYN, (w, h))
+    np.testing.assert_array_equal(rig.left.K, K)
+    np.testing.assert_array_equal(rig.right.K, np.loadtxt(HAMLYN / "calib.right.intrinsic.txt"))
+    l2r = np.loadtxt(HAMLYN / "calib.l2r.4x4")
+    np.testing.assert_allclose(rig.R, l2r[:3, :3])
+    np.testing.assert_allclose(rig.T, l2r[:3, 3] / 1000.0)  # millimetres in the folder, metres in the rig
+    assert not rig.rectified and (rig.left.width, rig.left.height) == (w, h)
