@@ -82,10 +82,13 @@ class Raycaster:
 
     ``subset`` (indices into ``triangles``) casts against those triangles only, e.g. the ones a camera can
     see (:func:`triangles_in_view`): the acceleration structure is built over far fewer triangles, while
-    triangle ids, barycentric coordinates and vertex normals stay those of the whole mesh.
+    triangle ids, barycentric coordinates and vertex normals stay those of the whole mesh. ``vertex_normals``
+    (N, 3), when given, are the angle-weighted vertex normals (computed once by the caller, e.g. for a static
+    scene; they need only be right at the vertices of the triangles cast against).
     """
 
-    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, subset: np.ndarray | None = None):
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, subset: np.ndarray | None = None,
+                 vertex_normals: np.ndarray | None = None):
         import open3d as o3d  # imported here: the CLI starts faster without it
 
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -102,7 +105,7 @@ class Raycaster:
                 o3d.core.Tensor(self.vertices.astype(np.float32)),
                 o3d.core.Tensor(cast.astype(np.uint32)),
             )
-        self._vertex_normals: np.ndarray | None = None
+        self._vertex_normals = vertex_normals  # given: exact at least at the vertices of ``subset``
         self._ray_cache: dict = {}
 
     @property

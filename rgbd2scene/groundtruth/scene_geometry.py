@@ -22,6 +22,7 @@ from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
+from rgbd2scene.reconstruct.mesh import vertex_normals
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
 
@@ -69,6 +70,7 @@ class SceneGeometry:
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
+        self._static_normals: np.ndarray | None = None
         self._lock = threading.RLock()  # the render worker asks from two threads
 
     def part_vertices(self, index: int, frame: int) -> np.ndarray:
@@ -139,12 +141,27 @@ class SceneGeometry:
             rc = self._cache.get(key)
             if rc is None:
                 subset = self.in_view(frame, camera) if culled else None
-                rc = Raycaster(self.vertices(frame), self.triangles, subset)
+                rc = Raycaster(self.vertices(frame), self.triangles, subset, self._normals(frame, subset))
                 self._cache[key] = rc
                 while len(self._cache) > self._cache_size:
                     self._cache.popitem(last=False)
             self._cache.move_to_end(key)
             return rc
+
+    def _normals(self, frame: int, subset: np.ndarray | None) -> np.ndarray | None:
+        """Angle-weighted vertex normals for a ray caster of ``frame``: a static scene's, once; a moving one's
+        from the triangles around ``subset`` only (every triangle sharing a vertex with one: exact at the
+        vertices a cast against ``subset`` can hit); None (the caster computes them) for the whole scene."""
+        if self.static:
+            if self._static_normals is None:
+                self._static_normals = vertex_normals(self.vertices(frame), self.triangles, "angle")
+            return self._static_normals
+        if subset is None:
+            return None
+        seen = np.zeros(len(self.vertices(frame)), bool)
+        seen[self.triangles[subset]] = True
+        around = self.triangles[seen[self.triangles].any(axis=1)]
+        return vertex_normals(self.vertices(frame), around, "angle")
 
     def view_support(self, index: int, frame: int, cameras) -> np.ndarray:
         """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes (``cameras``:
