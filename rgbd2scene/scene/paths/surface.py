@@ -69,14 +69,17 @@ class Surface:
 
 def view_height(rig: StereoRig, depth: float) -> float:
     """Height (m) of the view at ``depth`` along the optical axis."""
-    return depth * rig.intrinsics.height / rig.intrinsics.fy
+    if rig.left.is_pinhole:
+        return depth * rig.intrinsics.height / rig.intrinsics.fy
+    _, _, y0, y1 = rig.left.normalised_bounds(0.0)  # the lens's own view: every pixel's ray
+    return depth * (y1 - y0)
 
 
 def footprint_half(rig: StereoRig, depth: float, tilt_rad: float) -> tuple[float, float]:
     """Half extents (x, y) on a plane at ``depth`` of both eyes' views, tilted by up to ``tilt_rad``."""
-    intr = rig.intrinsics
-    ax = np.arctan(max(intr.cx + 0.5, intr.width - 0.5 - intr.cx) / intr.fx)
-    ay = np.arctan(max(intr.cy + 0.5, intr.height - 0.5 - intr.cy) / intr.fy)
+    bounds = [camera.normalised_bounds(0.0) for camera in (rig.left, rig.right)]  # every pixel's ray, any lens
+    ax = np.arctan(max(max(-x0, x1) for x0, x1, _, _ in bounds))
+    ay = np.arctan(max(max(-y0, y1) for _, _, y0, y1 in bounds))
     hx = depth * np.sin(ax) / np.cos(min(ax + tilt_rad, np.radians(85.0))) + rig.baseline
     hy = depth * np.sin(ay) / np.cos(min(ay + tilt_rad, np.radians(85.0)))
     return float(hx), float(hy)
