@@ -202,3 +202,16 @@ def test_the_hamlyn_calibration_folder_is_a_scope_rig():
     np.testing.assert_allclose(rig.R, l2r[:3, :3])
     np.testing.assert_allclose(rig.T, l2r[:3, 3] / 1000.0)  # millimetres in the folder, metres in the rig
     assert not rig.rectified and (rig.left.width, rig.left.height) == (w, h)
+
+
+def test_camera_info_of_a_rational_lens():
+    from rgbd2scene.export.ros import camera_info_matrices
+
+    lens = Camera(Intrinsics(64, 32, 40.0, 41.0, 31.5, 15.5), RATIONAL)
+    info = camera_info_matrices(StereoRig(lens, 0.005), "right")
+    assert info["distortion_model"] == "rational_polynomial"
+    np.testing.assert_array_equal(info["d"], RATIONAL)
+    np.testing.assert_array_equal(info["k"], lens.K.ravel())
+    pinhole = camera_info_matrices(StereoRig(lens.intrinsics, 0.005), "right")
+    assert pinhole["distortion_model"] == "plumb_bob" and not pinhole["d"].any()
+    assert pinhole["p"][3] == pytest.approx(-40.0 * 0.005)  # P[0,3] = -fx B

@@ -242,3 +242,29 @@ def test_a_lens_folding_inside_the_image_sees_nothing_beyond_the_fold(tmp_path):
     assert np.isnan(gt["normals"][~has_ray]).all() and (gt["segmentation"][~has_ray] == 0).all()
     report = verify_dataset(out, progress=False)
     assert report.ok, [r for r in report.results if r.status == "fail"]
+
+
+def test_a_raw_bag_has_each_eyes_real_distortion(raw, tmp_path):
+    pytest.importorskip("mcap_ros2")
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from rgbd2scene.cli import main
+
+    bag = tmp_path / "bag"
+    assert main(["export-ros", str(raw), "-o", str(bag), "--ros", "2", "--quiet"]) == 0
+    infos = {}
+    with next(bag.glob("*.mcap")).open("rb") as f:
+        for _, channel, _, decoded in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            assert not channel.topic.endswith("/disparity")  # a raw pair has none
+            if channel.topic.endswith("camera_info"):
+                infos.setdefault(channel.topic.split("/")[-2], decoded)
+    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(K1, D1, K2, D2, (W, H), R, T, flags=cv2.CALIB_ZERO_DISPARITY,
+                                                alpha=0)
+    for eye, K, D, Rr, P in (("left", K1, D1, R1, P1), ("right", K2, D2, R2, P2)):
+        info = infos[eye]
+        assert info.distortion_model == "plumb_bob"
+        np.testing.assert_allclose(info.d, D)
+        np.testing.assert_allclose(np.reshape(info.k, (3, 3)), K)
+        np.testing.assert_allclose(np.reshape(info.r, (3, 3)), Rr, atol=1e-12)
+        np.testing.assert_allclose(np.reshape(info.p, (3, 4)), P, atol=1e-9)

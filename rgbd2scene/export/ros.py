@@ -10,7 +10,7 @@ Topics (``prefix`` defaults to ``/stereo``; e.g. ``--prefix /dvrk/ECM`` mimics a
     {prefix}/left/camera_info         sensor_msgs/CameraInfo          left camera
     {prefix}/right/image_rect_color   sensor_msgs/Image rgb8          right image
     {prefix}/right/camera_info        sensor_msgs/CameraInfo          right camera
-    {prefix}/disparity                stereo_msgs/DisparityImage      left disparity
+    {prefix}/disparity                stereo_msgs/DisparityImage      left disparity (rectified datasets)
     {prefix}/depth/image_rect         sensor_msgs/Image 32FC1         left depth in metres, NaN = no surface
                                                                       (REP 118)
     {prefix}/left/segmentation        sensor_msgs/Image 16UC1         left instance ids, 0 = nothing
@@ -303,19 +303,21 @@ def export_ros(dataset: Dataset, out: str | Path, options: RosOptions | None = N
     try:
         with atomic_place(out) as tmp, _BagWriter(tmp, messages) as bag:
             bag.add(topics.tf_static, TF, latched=True)
+            rectified = dataset.rectified  # a raw pair has no disparity: its topic is left out
             for topic, msgtype in ((topics.tf, TF), (topics.left_image, IMAGE), (topics.left_info, CAMERA_INFO),
                                    (topics.right_image, IMAGE), (topics.right_info, CAMERA_INFO),
                                    (topics.disparity, DISPARITY), (topics.depth, IMAGE),
                                    (topics.segmentation, IMAGE)):
-                bag.add(topic, msgtype)
+                if rectified or topic != topics.disparity:
+                    bag.add(topic, msgtype)
             first = True
             for index in frame_indices(dataset, progress, f"export ros{options.version}"):
                 stamp = stamp_ns(index, rate, options.start)
                 if first:
                     bag.write(topics.tf_static, stamp, messages.tf(stamp, static))
                     first = False
-                left = dataset.gt("left", index, ("depth", "disparity", "segmentation", "T_world_cam",
-                                                  "object_ids", "object_poses"))
+                left = dataset.gt("left", index, ("depth", "segmentation", "T_world_cam", "object_ids",
+                                                  "object_poses"), optional=("disparity",))
                 moving = [(options.world, options.scope, scope_pose(left["T_world_cam"]))]
                 moving += [(options.world, f"object_{int(oid)}", BODY_FROM_OPTICAL @ T)
                            for oid, T in zip(left["object_ids"], left["object_poses"], strict=True)]
@@ -326,8 +328,9 @@ def export_ros(dataset: Dataset, out: str | Path, options: RosOptions | None = N
                                                                  "rgb8"))
                     bag.write(info_topic, stamp, messages.camera_info(stamp, frame_ids[eye], width, height,
                                                                       info[eye]))
-                bag.write(topics.disparity, stamp, messages.disparity(stamp, frame_ids["left"], left["disparity"],
-                                                                      fx, baseline))
+                if rectified:
+                    bag.write(topics.disparity, stamp, messages.disparity(stamp, frame_ids["left"],
+                                                                          left["disparity"], fx, baseline))
                 bag.write(topics.depth, stamp, messages.image(stamp, frame_ids["left"],
                                                               left["depth"].astype("<f4"), "32FC1"))
                 bag.write(topics.segmentation, stamp, messages.image(stamp, frame_ids["left"],
