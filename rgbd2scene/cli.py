@@ -281,7 +281,7 @@ def cmd_render(args) -> int:
 
     summary = render_dataset(args.scene, args.output, from_args(RenderOptions, args), progress=not args.quiet)
     print(f"rendered {summary['rendered']} frames, skipped {summary['skipped']} already done -> {args.output}")
-    if not args.no_sheet:
+    if not args.no_sheet and not args.gt_only:  # --gt-only renders no images to show
         from rgbd2scene.pictures.contact_sheet import write_frame_sheet
 
         start, end = summary["range"]
