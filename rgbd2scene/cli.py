@@ -293,7 +293,8 @@ def cmd_render(args) -> int:
 def cmd_verify(args) -> int:
     from rgbd2scene.verify import format_report, verify_dataset
 
-    report = verify_dataset(args.dataset, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps)
+    report = verify_dataset(args.dataset, mesh_path=args.mesh, progress=not args.quiet, error_maps=args.error_maps,
+                            blender_frames=args.blender_frames)
     print(format_report(report))
     if args.json:
         from rgbd2scene.files.atomic import write_json
@@ -432,6 +433,8 @@ def _args_verify(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mesh", help="scene mesh to ray cast (default: the one dataset.json names)")
     p.add_argument("--json", help="also write the report as JSON")
     p.add_argument("--error-maps", help="folder for error-map pictures of the worst frames (per eye)")
+    p.add_argument("--blender-frames", type=int, default=0, metavar="N", help="render N sampled frames' passes "
+                   "with Blender and compare the maps with them (the independent second source)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -147,3 +147,27 @@ def test_gt_only_regenerates_without_blender(scene, both, tmp_path, monkeypatch)
     for f in range(FRAMES):
         for eye in ds.EYES:
             assert ds.frame_paths(out, eye, f).gt.read_bytes() == ds.frame_paths(model, eye, f).gt.read_bytes()
+
+
+def test_verify_compares_sampled_frames_with_blenders_passes(both, tmp_path):
+    import shutil
+
+    model, _ = both
+    report = verify_dataset(model, progress=False, blender_frames=2, frames=[0],
+                            tolerances=Tolerances(occlusion_disagree=0.03))
+    rows = [r for r in report.results if r.check == "passes"]
+    assert {r.metric for r in rows} >= {"depth max rel diff", "normals max angle (deg)", "flow max diff (px)"}
+    assert all(r.status == "pass" for r in rows) and report.ok
+    assert {r.worst_frame for r in rows} <= {0, FRAMES - 1}
+    # a ground truth that is off by 0.1 % in depth on the last frame: Blender's passes disagree
+    bad = tmp_path / "bad"
+    shutil.copytree(model, bad)
+    path = ds.frame_paths(bad, "left", FRAMES - 1).gt
+    with np.load(path) as z:
+        gt = {k: z[k] for k in z.files}
+    gt["depth"] = gt["depth"] * np.float32(1.001)
+    np.savez(path, **gt)
+    report = verify_dataset(bad, progress=False, blender_frames=2, frames=[0],
+                            tolerances=Tolerances(occlusion_disagree=0.03))
+    failed = {(r.check, r.eye, r.metric) for r in report.results if r.status == "fail"}
+    assert ("passes", "left", "depth max rel diff") in failed
