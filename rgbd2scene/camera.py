@@ -260,7 +260,7 @@ class Camera:
         return None
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=4)
 def _distorted_rays(camera: Camera) -> np.ndarray:
     """The rays of a distorted camera (read-only, shared): computed once per camera, which every frame of a
     dataset and every stage shares (equal cameras are one key)."""

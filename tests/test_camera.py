@@ -215,3 +215,22 @@ def test_camera_info_of_a_rational_lens():
     pinhole = camera_info_matrices(StereoRig(lens.intrinsics, 0.005), "right")
     assert pinhole["distortion_model"] == "plumb_bob" and not pinhole["d"].any()
     assert pinhole["p"][3] == pytest.approx(-40.0 * 0.005)  # P[0,3] = -fx B
+
+
+@pytest.mark.parametrize("lens, message", [
+    ({"distortion": [-3.0, 0, 0, 0, 0]}, "folds at normalised radius"),
+    ({"distortion": [0.1, float("nan"), 0, 0]}, "non-finite"),
+])
+def test_scene_with_a_bad_scope_lens_exits_2_and_writes_nothing(tmp_path, lens, message):
+    import subprocess
+    import sys
+
+    scope = tmp_path / "scope.json"
+    scope.write_text(json.dumps({"width": 128, "height": 96, "fx": 96.0, "fy": 96.0, "cx": 63.5, "cy": 47.5, **lens}))
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-m", "rgbd2scene.cli", "scene", "--mesh-dir", str(tmp_path / "none"),
+                             "--scope-camera", str(scope), "-o", str(out)], capture_output=True, text=True)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], result.stderr
+    assert not out.exists()
