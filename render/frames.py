@@ -460,22 +460,25 @@ def _rgb_with_model_gt(renderer: Renderer, out_dir: Path, need_rgb: list[int], n
         renderer.model_gt.write(out_dir, index, scratch)
         return time.perf_counter() - t0, _cpu_s() - c0
 
+    gt_only = [index for index in need_gt if index not in set(need_rgb)]  # their images are there already
     with ThreadPoolExecutor(max_workers=1) as pool:
-        jobs = {index: pool.submit(write, index) for index in need_gt}
         for index in need_rgb:
+            # the frame's ground truth is computed while Blender renders its images (one frame at a time:
+            # flat memory, and a frame is finished before the next one starts)
+            job = pool.submit(write, index) if index in need_gt else None
             t0, c0 = time.perf_counter(), _cpu_s()
             renderer.set_frame(index)
             renderer.render_rgb(index)
             renderer.free_images()
             t_rgb, c_rgb = time.perf_counter() - t0, _cpu_s() - c0
             t_gt = 0.0
-            if index in jobs:
+            if job is not None:
                 t0 = time.perf_counter()
-                jobs.pop(index).result()
+                job.result()
                 t_gt = time.perf_counter() - t0  # the wait for the thread: what the ground truth added
             say(frame_line(index, "done", t_rgb + t_gt, cpu=c_rgb, rgb=t_rgb, gt=t_gt, rss=_rss_mb()))
-        for index in sorted(jobs):
-            t_gt, c_gt = jobs[index].result()
+        for index in gt_only:
+            t_gt, c_gt = pool.submit(write, index).result()
             say(frame_line(index, "done", t_gt, cpu=c_gt, rgb=0.0, gt=t_gt, rss=_rss_mb()))
 
 
