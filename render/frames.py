@@ -57,10 +57,12 @@ import numpy as np
 
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.scene.raw import raw_render_plan
 from rgbd2scene.sensor.develop_frames import FrameDeveloper
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
 from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
@@ -154,7 +156,14 @@ class Renderer:
         from render.scene_builder import set_intrinsics
 
         self.rig = description.rig
-        set_intrinsics(scene, camera, self.rig.intrinsics)
+        # a raw pair (distortion, unequal eyes) is rendered as its rectified pair covering every raw pixel's
+        # ray, then resampled into the raw grid (rgbd2scene.scene.raw); the camera then follows the model's
+        # (rectified) poses instead of the blend's keys, as for a pair rectified from a raw rig (--rectify)
+        self.raw = None if self.rig.rectified else raw_render_plan(self.rig)
+        self.drive_camera = self.raw is not None or bool(options.rectify)
+        if self.drive_camera:
+            camera.animation_data_clear()
+        set_intrinsics(scene, camera, self.raw.intrinsics if self.raw else self.rig.intrinsics)
         self.K = self.rig.intrinsics.K
         self.baseline = self.rig.baseline
         _check_blend_agrees(scene, camera, description, blend)
@@ -186,10 +195,16 @@ class Renderer:
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
         self.maps = options.maps
         self.sensor = options.sensor
+        # the linear render is in the rendered grid (the rectified pair of a raw rig): the environment's ray
+        # lengths use its K; the raw pair's lens resampling comes before metering and the sensor
+        rendered = self.raw.intrinsics if self.raw else self.rig.intrinsics
         self.developer = FrameDeveloper(out_dir, options.sensor, options.environment, options.seed,
-                                        description.path.fps, self.K)
+                                        description.path.fps, rendered.K,
+                                        lens=None if self.raw is None else self.raw.resample)
         self.passes = passes_needed(self.maps)
-        self.gt_material = _gt_material(bpy) if self.maps else None
+        # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check)
+        self.from_model = bool(self.maps) and options.gt_source == "model"
+        self.gt_material = _gt_material(bpy) if self.maps and not self.from_model else None
         self.view_layer = scene.view_layers[0]
         for layer in scene.view_layers[1:]:
             layer.use = False
@@ -200,8 +215,11 @@ class Renderer:
         # culling needs the parts' geometry files (a scene folder may hold only its .blend: rendered whole)
         cull = bool(options.view_culling) and all((Path(scene_dir) / p.geometry).is_file()
                                                   for _, p in description.parts())
-        self.geometry = SceneGeometry(description, scene_dir) if self.maps and (self.moving or cull) else None
-        self.view_masks = self._add_view_masks() if self.maps and cull else []
+        need_geometry = self.maps and (self.moving or cull or self.from_model)
+        self.geometry = SceneGeometry(description, scene_dir) if need_geometry else None
+        self.model_gt = (ModelGroundTruth(self.geometry, description, self.frames, self.maps) if self.from_model
+                         else None)
+        self.view_masks = self._add_view_masks() if self.maps and cull and not self.from_model else []
 
     def _add_view_masks(self) -> list[ViewMask]:
         """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group
@@ -223,9 +241,8 @@ class Renderer:
     def mask_views(self, index: int) -> None:
         """Keep, in the data render of frame ``index``, only the vertices its two eyes need
         (:meth:`SceneGeometry.view_support`: the passes are those of the whole scene, bit for bit)."""
-        intr = self.rig.intrinsics
         for mask in self.view_masks:
-            keep = self.geometry.view_support(mask.part, index, self.K, intr.width, intr.height).tolist()
+            keep = self.geometry.view_support(mask.part, index, (self.rig.left, self.rig.right)).tolist()
             if mask.kept:
                 mask.group.remove(mask.kept)
             mask.group.add(keep, 1.0, "REPLACE")
@@ -292,6 +309,19 @@ class Renderer:
 
     # -- one frame --
 
+    def set_frame(self, index: int) -> None:
+        """Go to frame ``index``: the blend's animation, and the camera at the model's pose when it follows the
+        model (:attr:`drive_camera`); then check every pose against the model."""
+        self.scene.frame_set(index)
+        if self.drive_camera:
+            from mathutils import Matrix
+
+            T = self.description.camera_pose(index)
+            if self.raw is not None:
+                T = self.raw.rectified_pose(T)
+            self.camera.matrix_world = Matrix(blender_pose_from_opencv(T).tolist())
+        _check_pose(self.scene, self.camera, self.description, index, camera_keyed=not self.drive_camera)
+
     def render_linear(self, index: int) -> tuple[dict, dict | None]:
         """The current frame's linear RGB render of both eyes, float32 (H, W, 3), and its Depth pass (only when
         the environment needs it)."""
@@ -311,7 +341,7 @@ class Renderer:
 
     def meter_frame(self, index: int) -> None:
         """Render frame ``index`` only to meter it for the auto exposure of the frames after it."""
-        self.scene.frame_set(index)
+        self.set_frame(index)
         linear, depth = self.render_linear(index)
         left = self.developer.scene_linear(index, "left", linear["left"], None if depth is None else depth["left"])
         self.developer.meter(index, left)
@@ -332,8 +362,7 @@ class Renderer:
         in a thread while Blender renders. Empty for a static scene."""
         if not self.moving:
             return {}
-        intr = self.rig.intrinsics
-        out: dict = {eye: occlusion_maps(self.geometry, index, self.frames, eye, self.K, intr.width, intr.height)
+        out: dict = {eye: occlusion_maps(self.geometry, index, self.frames, eye, self.rig.camera(eye))
                      for eye in VIEWS}
         out["geometry"] = {f"vertices_{pid}": self.geometry.part_vertices(i, index).astype(np.float32)
                            for pid, i in self.geometry.deformed()}
@@ -351,7 +380,7 @@ class Renderer:
                                     passes.get("index"), self.K, job["poses"][eye], self.baseline,
                                     first=index == 0, last=index == self.frames - 1,
                                     object_ids=job["object_ids"], object_poses=job["object_poses"],
-                                    maps=self.maps)
+                                    maps=self.maps, D=self.rig.camera(eye).distortion)
                 surface = np.isfinite(gt.get("depth", depth_from_pass(passes["depth"])))
                 for key, flags in from_model.get(eye, {}).items():
                     gt[key] = flags & surface
@@ -425,10 +454,10 @@ def _check_blend_agrees(scene, camera, description: SceneDescription, blend: Pat
         raise WorkerError(f"{blend}: no object with instance id(s) {missing} of the scene model")
 
 
-def _check_pose(scene, camera, description: SceneDescription, index: int) -> None:
-    """The camera and every posed part Blender renders (keyed on their tracks) are at the model's poses of
-    this frame."""
-    checks = [("camera", camera, blender_pose_from_opencv(description.camera_pose(index)))]
+def _check_pose(scene, camera, description: SceneDescription, index: int, camera_keyed: bool = True) -> None:
+    """The camera (when ``camera_keyed``) and every posed part Blender renders (keyed on their tracks) are at
+    the model's poses of this frame."""
+    checks = [("camera", camera, blender_pose_from_opencv(description.camera_pose(index)))] if camera_keyed else []
     by_id = {o.pass_index: o for o in scene.objects if o.type == "MESH"}
     checks += [(f"part {p.id}", by_id[p.id], p.pose_at(index)) for _, p in description.parts() if p.poses is not None]
     for what, obj, expected in checks:
@@ -451,6 +480,58 @@ def _cpu_s() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: list[int], say,
+               scratch: Path) -> dict[int, tuple[float, float]]:
+    """Every RGB frame of the chunk, pipelined: one thread develops frame i-1 (environment, auto exposure,
+    sensor, PNGs; in frame order, so each frame's metering is there for the next) while Blender renders frame i.
+    With ground truth from the scene model (:class:`~rgbd2scene.groundtruth.model_maps.ModelGroundTruth`, no
+    data render) another thread computes and writes frame i's maps meanwhile, and a frame is done when both
+    are. Returns the (wall, CPU) seconds of the frames a data render still has to finish (Blender's passes)."""
+    model = renderer.model_gt is not None
+    spent: dict[int, tuple[float, float]] = {}
+
+    def write_gt(index: int) -> None:
+        renderer.model_gt.write(out_dir, index, scratch)
+
+    t_mark, c_mark = time.perf_counter(), _cpu_s()
+    with ThreadPoolExecutor(max_workers=1) as develop_pool, ThreadPoolExecutor(max_workers=1) as gt_pool:
+        developing: list[tuple[int, Future, Future | None]] = []
+        for index in need_rgb + [None]:
+            if index is not None:
+                gt_job = gt_pool.submit(write_gt, index) if model and index in need_gt else None
+                # metering a chunk starts without (frames of this chunk are metered in turn by the thread)
+                for earlier in renderer.developer.missing_history(index, coming=need_rgb):
+                    renderer.meter_frame(earlier)
+                renderer.set_frame(index)
+                linear, depth = renderer.render_linear(index)
+                renderer.free_images()
+                developing.append((index, develop_pool.submit(renderer.developer.develop_frame, index, linear,
+                                                              depth), gt_job))
+            while developing and (index is None or len(developing) > 1):
+                done_index, future, gt_job = developing.pop(0)
+                future.result()
+                t_images = time.perf_counter()
+                if gt_job is not None:
+                    gt_job.result()
+                now, cpu = time.perf_counter(), _cpu_s()
+                t_frame, c_frame = now - t_mark, cpu - c_mark  # this frame's share
+                t_mark, c_mark = now, cpu
+                t_gt = now - t_images  # the wait for the model's maps: what the ground truth added
+                if done_index in need_gt and not model:  # the frame is finished by the data render
+                    spent[done_index] = t_frame, c_frame
+                    say(frame_line(done_index, "rgb", t_frame, cpu=c_frame, rss=_rss_mb()))
+                else:
+                    say(frame_line(done_index, "done", t_frame, cpu=c_frame, rgb=t_frame - t_gt, gt=t_gt,
+                                   rss=_rss_mb()))
+        if model:  # frames whose images are there already
+            for index in [i for i in need_gt if i not in set(need_rgb)]:
+                t0, c0 = time.perf_counter(), _cpu_s()
+                gt_pool.submit(write_gt, index).result()
+                t_gt = time.perf_counter() - t0
+                say(frame_line(index, "done", t_gt, cpu=_cpu_s() - c0, rgb=0.0, gt=t_gt, rss=_rss_mb()))
+    return spent
+
+
 def render_task(bpy, task: Task, say) -> None:
     """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
     t0 = time.perf_counter()
@@ -468,36 +549,13 @@ def render_task(bpy, task: Task, say) -> None:
         need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i, description.deforming)]
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
-        # Two phases: every RGB render of the chunk, then every data render. Switching between the two
-        # configurations makes Cycles rebuild its scene (the material override changes the shaders), so
-        # alternating them per frame costs ~0.1 s more per frame than running each kind back to back.
-        spent: dict[int, tuple[float, float]] = {}
-        # The RGB phase is pipelined too: one thread develops frame i-1 (environment, auto exposure, sensor,
-        # PNGs; in frame order, so each frame's metering is there for the next) while Blender renders frame i.
-        t_mark, c_mark = time.perf_counter(), _cpu_s()
-        with ThreadPoolExecutor(max_workers=1) as develop_pool:
-            developing: list[tuple[int, Future]] = []
-            for index in need_rgb + [None]:
-                if index is not None:
-                    # metering a chunk starts without (frames of this chunk are metered in turn by the thread)
-                    for earlier in renderer.developer.missing_history(index, coming=need_rgb):
-                        renderer.meter_frame(earlier)
-                    renderer.scene.frame_set(index)
-                    _check_pose(renderer.scene, renderer.camera, description, index)
-                    linear, depth = renderer.render_linear(index)
-                    renderer.free_images()
-                    developing.append((index, develop_pool.submit(renderer.developer.develop_frame, index, linear,
-                                                                  depth)))
-                while developing and (index is None or len(developing) > 1):
-                    done_index, future = developing.pop(0)
-                    future.result()
-                    now, cpu = time.perf_counter(), _cpu_s()
-                    spent[done_index] = t_rgb, c_rgb = now - t_mark, cpu - c_mark  # this frame's share
-                    t_mark, c_mark = now, cpu
-                    if done_index in need_gt:  # the frame is finished by the data render below
-                        say(frame_line(done_index, "rgb", t_rgb, cpu=c_rgb, rss=_rss_mb()))
-                    else:
-                        say(frame_line(done_index, "done", t_rgb, cpu=c_rgb, rgb=t_rgb, gt=0.0, rss=_rss_mb()))
+        spent = _rgb_phase(renderer, out_dir, need_rgb, need_gt, say, scratch)
+        if renderer.model_gt is not None:
+            return
+        # Blender's passes (--gt-source blender, the cross-check of the model's maps): every data render after
+        # every RGB render of the chunk. Switching between the two configurations makes Cycles rebuild its
+        # scene (the material override changes the shaders), so alternating them per frame costs ~0.1 s more
+        # per frame than running each kind back to back.
         # The data phase is pipelined: while Blender renders frame i's passes, one thread computes what the
         # model alone gives of frame i (occlusion maps, deformed vertices) and another converts and compresses
         # frame i-1's passes (the data render leaves a core idle: scene sync, BVH builds, 1 sample).
@@ -507,8 +565,7 @@ def render_task(bpy, task: Task, say) -> None:
             for index in need_gt + [None]:
                 if index is not None:
                     model = model_pool.submit(renderer.model_maps, index)
-                    renderer.scene.frame_set(index)
-                    _check_pose(renderer.scene, renderer.camera, description, index)
+                    renderer.set_frame(index)
                     job = renderer.render_data(index)
                     renderer.free_images()
                     pending.append((index, pool.submit(renderer.write_gt, job, model)))

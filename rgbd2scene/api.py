@@ -260,7 +260,7 @@ def run_render(scene: PathLike, output: PathLike, options, *, progress: bool = T
 
     summary = render_dataset(scene, output, options, progress=progress)
     picture = None
-    if sheet:
+    if sheet and not options.gt_only:  # --gt-only renders no images to show
         from rgbd2scene.pictures.contact_sheet import write_frame_sheet
 
         start, end = summary["range"]
@@ -270,13 +270,15 @@ def run_render(scene: PathLike, output: PathLike, options, *, progress: bool = T
 
 @_keyword_errors
 def verify(dataset: PathLike, *, mesh: PathLike | None = None, json: PathLike | None = None,
-           error_maps: PathLike | None = None, progress: bool = True):
+           error_maps: PathLike | None = None, blender_frames: int = 0, progress: bool = True):
     """``rgbd2scene verify``: the self-consistency report of the dataset's ground truth (``.ok`` says whether it
     passes; :func:`rgbd2scene.verify.format_report` prints it). ``mesh`` replaces the mesh dataset.json names,
-    ``json`` also writes the report there, ``error_maps`` is a folder for pictures of the worst frames."""
+    ``json`` also writes the report there, ``error_maps`` is a folder for pictures of the worst frames,
+    ``blender_frames`` compares the maps of that many sampled frames with Blender's own passes."""
     from rgbd2scene.verify import verify_dataset
 
-    report = verify_dataset(dataset, mesh_path=mesh, progress=progress, error_maps=error_maps)
+    report = verify_dataset(dataset, mesh_path=mesh, progress=progress, error_maps=error_maps,
+                            blender_frames=blender_frames)
     if json:
         from rgbd2scene.files.atomic import write_json
 

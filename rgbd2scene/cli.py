@@ -97,7 +97,7 @@ def cmd_scene(args) -> int:
     result = run_scene(args.output, *_capture_options(args), options, args.mesh_dir)
     record, out = result.record, result.folder
     cov = record["coverage"]
-    print(f"scene: {record['scene']['path']['frames']} frames ({options.path}), coverage min "
+    print(f"scene: {record['scene']['path']['frames']} frames ({record['scene']['path']['kind']}), coverage min "
           f"{100 * cov['min']:.1f} % mean {100 * cov['mean']:.1f} %, {time.perf_counter() - t0:.1f}s -> "
           f"{out}/scene.blend")
     for item in record.get("objects", {}).get("instruments", []):
@@ -125,7 +125,7 @@ def cmd_verify(args) -> int:
     from rgbd2scene.verify import format_report
 
     report = api.verify(args.dataset, mesh=args.mesh, json=args.json, error_maps=args.error_maps,
-                        progress=not args.quiet)
+                        blender_frames=args.blender_frames, progress=not args.quiet)
     print(format_report(report))
     return 0 if report.ok else 1
 
@@ -255,6 +255,8 @@ def _args_verify(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mesh", help="scene mesh to ray cast (default: the one dataset.json names)")
     p.add_argument("--json", help="also write the report as JSON")
     p.add_argument("--error-maps", help="folder for error-map pictures of the worst frames (per eye)")
+    p.add_argument("--blender-frames", type=int, default=0, metavar="N", help="render N sampled frames' passes "
+                   "with Blender and compare the maps with them (the independent second source)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 

@@ -8,13 +8,16 @@ Everything else calls these functions; see ``CONVENTIONS.md`` (shared contract),
 - Depth is planar z; invalid values are NaN.
 - Disparity d = fx*B/z > 0; a left pixel (u, v) matches the right pixel (u - d, v).
 - Flow (du, dv) in pixels: p(t+1) = p(t) + flow_forward.
+
+The pinhole functions here (``backproject``, ``pixel_rays``, ``project``) are the distortion-free case of
+the camera model, :class:`rgbd2scene.camera.Camera`, which calls them for a pinhole; stages ask the camera.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-CONVENTIONS_VERSION = "1.1"
+CONVENTIONS_VERSION = "1.2"
 
 #: T_blendercam_cam: Blender's camera looks down -Z with +Y up; OpenCV's looks down +Z with +Y down.
 BLENDER_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.capture.camera import Intrinsics, load_camera_json
 from rgbd2scene.capture.readers import Capture, load_capture
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
@@ -72,7 +73,7 @@ def synthetic_frames():
     rc = raycaster(*_scene_mesh())
     frames = []
     for T in POSES_W:
-        depth = rc.cast(INTR.K, INTR.width, INTR.height, T, normals="none")["depth"]
+        depth = rc.cast(Camera(INTR), T, normals="none")["depth"]
         rgb = _colour(transform_points(T, backproject(depth, INTR.K)))
         frames.append(Capture(rgb, depth, INTR, rgb_path=f"frame{len(frames)}.png"))
     return frames
@@ -118,7 +119,7 @@ def test_fused_mesh_reproduces_every_frame_and_sees_more_than_one(synthetic_fuse
     # the first pose sees mesh beyond the rays of the first camera's image
     rc = raycaster(synthetic_fused.mesh.vertices, synthetic_fused.mesh.triangles)
     wide = Intrinsics(INTR.width, INTR.height, 60.0, 60.0, INTR.cx, INTR.cy)
-    hit = np.isfinite(rc.cast(wide.K, wide.width, wide.height, np.eye(4), normals="none")["depth"])
+    hit = np.isfinite(rc.cast(Camera(wide), np.eye(4), normals="none")["depth"])
     u, v = project(pixel_rays(wide.height, wide.width, wide.K), INTR.K)
     outside = (u < -0.5) | (u > INTR.width - 0.5) | (v < -0.5) | (v > INTR.height - 0.5)
     print(f"wide view: {100 * (hit & outside).mean():.1f} % of its pixels see fused surface outside frame 0's view")
@@ -135,7 +136,7 @@ def test_fused_vertex_colours_come_from_the_frames(synthetic_fused):
 
 def test_fused_triangles_face_the_cameras(synthetic_fused):
     mesh = synthetic_fused.mesh
-    hit = raycaster(mesh.vertices, mesh.triangles).cast(INTR.K, INTR.width, INTR.height, np.eye(4), normals="none")
+    hit = raycaster(mesh.vertices, mesh.triangles).cast(Camera(INTR), np.eye(4), normals="none")
     ids = hit["triangle_ids"][hit["triangle_ids"] >= 0]
     rays = pixel_rays(INTR.height, INTR.width, INTR.K)[hit["triangle_ids"] >= 0]
     assert np.mean(np.sum(mesh.face_normals()[ids] * rays, axis=1) < 0) > 0.99

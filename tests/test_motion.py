@@ -1,8 +1,10 @@
 """Moving and deforming surfaces: ground truth of breathing tissue and of an object sliding over it.
 
-Scenes are scene models built and rendered through the one Blender entry point (64x32, a few frames). The
-references are independent of Blender: the deformation formula and the model's poses in numpy, ray casting
-the model (``SceneGeometry``), and the other maps of the same dataset.
+Scenes are scene models built and rendered through the one Blender entry point (64x32, a few frames), with
+the ground truth from Blender's passes (``gt_source="blender"``, the cross-check of the scene model's maps,
+which ``tests/test_model_gt.py`` compares). The references are independent of Blender: the deformation
+formula and the model's poses in numpy, ray casting the model (``SceneGeometry``), and the other maps of the
+same dataset.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 import pytest
 
 from rgbd2scene import conventions as cv
+from rgbd2scene.camera import Camera
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.files.meshio import write_ply
@@ -89,7 +92,7 @@ def breathing(tmp_path_factory):
     description = SceneDescription(rig, path, Light(), [tissue])
     scene = _build(folder, description)
     out = tmp_path_factory.mktemp("breathing_ds") / "ds"
-    render_dataset(scene, out, samples=1, denoise="none", progress=False)
+    render_dataset(scene, out, samples=1, denoise="none", progress=False, gt_source="blender")
     return scene, out, description
 
 
@@ -109,7 +112,7 @@ def test_breathing_ground_truth_follows_the_deformation(breathing):
         for eye in ds.EYES:
             _, gt = ds.read_frame(out, eye, f)
             T = description.camera_pose(f, eye)
-            ref = geometry.cast(f, INTR.K, T, INTR.width, INTR.height)
+            ref = geometry.cast(f, Camera(INTR), T)
             both = np.isfinite(gt["depth"]) & np.isfinite(ref["depth"])
             assert both.mean() > 0.9
             # depth and normals of the deformed surface
@@ -193,7 +196,7 @@ def sliding(tmp_path_factory):
     description = SceneDescription(rig, path, Light(), [tissue_object("as_captured", texture=None), slider])
     scene = _build(folder, description)
     out = tmp_path_factory.mktemp("sliding_ds") / "ds"
-    render_dataset(scene, out, samples=1, denoise="none", progress=False)
+    render_dataset(scene, out, samples=1, denoise="none", progress=False, gt_source="blender")
     return scene, out, description
 
 
@@ -233,10 +236,11 @@ def test_data_renders_of_what_is_in_view_equal_those_of_the_whole_scene(fixture,
     ground-truth array is the same, bit for bit, as with the whole scene synced."""
     scene, out, description = request.getfixturevalue(fixture)
     geometry = SceneGeometry(description, scene)
-    support = geometry.view_support(0, 1, INTR.K, INTR.width, INTR.height)
+    support = geometry.view_support(0, 1, Camera(INTR))
     assert (len(support) < len(geometry.meshes[0].vertices)) == beyond_view  # breathing: a grid wider than the view
     whole = tmp_path / "whole"
-    render_dataset(scene, whole, samples=1, denoise="none", progress=False, view_culling=False)
+    render_dataset(scene, whole, samples=1, denoise="none", progress=False, view_culling=False,
+                   gt_source="blender")
     for eye in ("left", "right"):
         for f in range(FRAMES):
             _, culled = ds.read_frame(out, eye, f, rgb=False)

@@ -105,7 +105,7 @@ def test_instrument_parts_have_distinct_ids_with_crisp_edges(instrument_dataset)
             seg, depth = gt["segmentation"], gt["depth"].astype(np.float64)
             assert set(np.unique(seg)) <= {1, *ids.values()}
             T = desc.camera_pose(f, eye)
-            hits = {i: rc.cast(rig.intrinsics.K, 64, 32, T, normals="face") for i, rc in casters.items()}
+            hits = {i: rc.cast(rig.left, T, normals="face") for i, rc in casters.items()}
             per_part = {i: hit["depth"].astype(np.float64) for i, hit in hits.items()}
             rays = cv.pixel_rays(32, 64, rig.intrinsics.K)
             for i in np.unique(seg):

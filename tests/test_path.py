@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import backproject, project, transform_points
 from rgbd2scene.errors import UserError
 from rgbd2scene.groundtruth.raycast import raycaster
@@ -71,7 +72,7 @@ def test_raycaster_plane_exact_pixel_centres():
     rig = StereoRig.endoscope(40, 20)
     K = rig.intrinsics.K
     T = look_at([0.003, -0.002, 0.0], p0 + [0.004, 0.001, 0], [0.1, -1, 0])
-    out = rc.cast(K, 40, 20, T)
+    out = rc.cast(Camera.pinhole(K, 40, 20), T)
     assert out["depth"].dtype == np.float32 and out["normals_cam"].dtype == np.float32
     assert out["triangle_ids"].dtype == np.int64 and np.isfinite(out["depth"]).all()
     # back-projected pixel centres lie on the plane
@@ -85,7 +86,7 @@ def test_raycaster_plane_exact_pixel_centres():
     n_cam = T[:3, :3].T @ n
     n_cam = n_cam if n_cam[2] < 0 else -n_cam
     assert np.abs(out["normals_cam"] - n_cam).max() < 1e-5
-    miss = rc.cast(K, 40, 20, look_at([0, 0, 0], [0, 0, -1]))
+    miss = rc.cast(Camera.pinhole(K, 40, 20), look_at([0, 0, 0], [0, 0, -1]))
     assert np.isnan(miss["depth"]).all() and (miss["triangle_ids"] == -1).all()
     assert np.isnan(miss["normals_cam"]).all()
 
@@ -97,7 +98,7 @@ def test_smooth_normals_interpolate_vertex_normals():
     assert np.allclose(np.linalg.norm(vn, axis=1), 1.0)
     T = look_at([0.0, 0.0, 0.55], [0.0, 0.0, 0.6])
     K = StereoRig.endoscope(32, 16).intrinsics.K
-    out = rc.cast(K, 32, 16, T, normals="smooth", with_uvs=True)
+    out = rc.cast(Camera.pinhole(K, 32, 16), T, normals="smooth", with_uvs=True)
     ids, uvs = out["triangle_ids"], out["uvs"]
     ok = ids >= 0
     tri = t[ids[ok]]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.files.meshio import write_ply
 from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
@@ -37,11 +38,11 @@ def test_casting_the_triangles_in_view_hits_what_the_whole_mesh_hits():
     mesh = _wavy_grid()
     full = Raycaster(mesh.vertices, mesh.triangles)
     for pose in _poses():
-        subset = triangles_in_view(mesh.vertices, mesh.triangles, INTR.K, INTR.width, INTR.height, [pose])
+        subset = triangles_in_view(mesh.vertices, mesh.triangles, [(Camera(INTR), pose)])
         assert 0 < len(subset) < 0.2 * len(mesh.triangles)  # the view is a small part of the surface
         culled = Raycaster(mesh.vertices, mesh.triangles, subset)
-        a = full.cast(INTR.K, INTR.width, INTR.height, pose, normals="smooth", with_uvs=True)
-        b = culled.cast(INTR.K, INTR.width, INTR.height, pose, normals="smooth", with_uvs=True)
+        a = full.cast(Camera(INTR), pose, normals="smooth", with_uvs=True)
+        b = culled.cast(Camera(INTR), pose, normals="smooth", with_uvs=True)
         assert (a["triangle_ids"] >= 0).all()
         for key in ("triangle_ids", "depth", "uvs", "normals_cam"):  # ids of the whole mesh, its vertex normals
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
@@ -52,7 +53,7 @@ def test_a_triangle_across_the_view_is_kept_and_one_behind_the_camera_is_not():
     vertices = np.array([[-1.0, -1.0, 0.1], [1.0, -1.0, 0.1], [0.0, 1.0, 0.1],
                          [0.0, 0.0, -0.1], [0.01, 0.0, -0.1], [0.0, 0.01, -0.1]])
     triangles = np.array([[0, 1, 2], [3, 4, 5]])
-    kept = triangles_in_view(vertices, triangles, INTR.K, INTR.width, INTR.height, [np.eye(4)])
+    kept = triangles_in_view(vertices, triangles, [(Camera(INTR), np.eye(4))])
     np.testing.assert_array_equal(kept, [0])
 
 
@@ -69,8 +70,8 @@ def test_scene_geometry_casts_from_its_eyes_as_from_the_whole_scene(tmp_path):
         whole = Raycaster(geometry.vertices(frame), geometry.triangles)
         for eye in ("left", "right"):
             T = description.camera_pose(frame, eye)
-            a = whole.cast(INTR.K, INTR.width, INTR.height, T, normals="smooth", with_uvs=True)
-            b = geometry.cast(frame, INTR.K, T, INTR.width, INTR.height)
+            a = whole.cast(Camera(INTR), T, normals="smooth", with_uvs=True)
+            b = geometry.cast(frame, Camera(INTR), T)
             for key in ("triangle_ids", "depth", "uvs", "normals_cam"):
                 np.testing.assert_array_equal(a[key], b[key], err_msg=f"{key}, frame {frame}, {eye}")
     assert len(geometry._cache) <= 3
@@ -86,9 +87,9 @@ def test_view_support_keeps_every_triangle_around_what_is_in_view(tmp_path):
     tri = geometry.meshes[0].triangles
     for frame in range(3):
         kept = np.zeros(len(mesh.vertices), bool)
-        kept[geometry.view_support(0, frame, INTR.K, INTR.width, INTR.height)] = True
+        kept[geometry.view_support(0, frame, Camera(INTR))] = True
         assert 0 < kept.sum() < 0.2 * len(kept)
         eyes = [description.camera_pose(frame, eye) for eye in ("left", "right")]
-        in_view = tri[triangles_in_view(geometry.vertices(frame), tri, INTR.K, INTR.width, INTR.height, eyes)]
+        in_view = tri[triangles_in_view(geometry.vertices(frame), tri, [(Camera(INTR), e) for e in eyes])]
         touching = np.isin(tri, in_view).any(axis=1)  # triangles sharing a vertex with one in view
         assert kept[tri[touching]].all()

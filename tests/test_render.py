@@ -88,7 +88,7 @@ def test_gt_from_passes_arrays():
     first = gt_from_passes(depth, None, vector, None, K, T, BASELINE, first=True, maps=("flow_backward",))
     last = gt_from_passes(depth, None, vector, None, K, T, BASELINE, last=True, maps=("flow_forward",))
     assert np.isnan(first["flow_backward"]).all() and np.isnan(last["flow_forward"]).all()
-    assert set(first) == {"flow_backward", "K", "T_world_cam", "object_ids", "object_poses"}
+    assert set(first) == {"flow_backward", "K", "D", "T_world_cam", "object_ids", "object_poses"}
     with pytest.raises(ValueError, match="normals"):
         gt_from_passes(depth, None, None, None, K, T, BASELINE, maps=("normals",))
 
@@ -459,6 +459,9 @@ def test_bad_inputs_are_user_errors(scene_a, tmp_path):
         render_dataset(scene_a, tmp_path / "out", frames=4, progress=False)
     with pytest.raises(UserError, match="--gt"):
         render_dataset(scene_a, tmp_path / "out", gt="depth,colour", progress=False)
+    with pytest.raises(UserError, match="--size: 100000x100000 needs about .* GiB"):  # a memory estimate
+        render_dataset(scene_a, tmp_path / "huge", size=(100000, 100000), progress=False)
+    assert not (tmp_path / "huge").exists()
     (tmp_path / "afile").write_text("x")
     with pytest.raises(UserError, match="afile"):
         render_dataset(scene_a, tmp_path / "afile", progress=False)

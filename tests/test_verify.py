@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import backproject, disparity_from_depth, flow_between_cameras, transform_points
 from rgbd2scene.groundtruth.raycast import raycaster
 from rgbd2scene.scene.paths import look_at
@@ -51,7 +52,7 @@ def write_dataset(root, vertices, triangles, rig, poses, mesh_file=None):
     eyes = {"left": list(poses), "right": [rig.right_pose(T) for T in poses]}
     for eye, eye_poses in eyes.items():
         for f, T in enumerate(eye_poses):
-            cast = rc.cast(K, W, H, T, normals="smooth")
+            cast = rc.cast(Camera.pinhole(K, W, H), T, normals="smooth")
             depth = cast["depth"]
             nan2 = np.full((H, W, 2), np.nan, np.float32)
             fwd = flow_between_cameras(depth, K, T, eye_poses[f + 1]) if f + 1 < len(eye_poses) else nan2
@@ -219,7 +220,7 @@ def test_half_pixel_convention_slip_is_caught(dataset, tmp_path):
             gt = {k: z[k] for k in z.files}
         K = gt["K"].copy()
         K[:2, 2] -= 0.5
-        gt["depth"] = rc.cast(K, W, H, gt["T_world_cam"], normals="none")["depth"]
+        gt["depth"] = rc.cast(Camera.pinhole(K, W, H), gt["T_world_cam"], normals="none")["depth"]
         np.savez_compressed(p, **gt)
     report = verify_dataset(d, progress=False)
     shift = [r for r in report.results if r.check == "depth" and "shift" in r.metric and r.eye == "left"]
@@ -358,7 +359,7 @@ def test_static_mesh_oracle_ids_and_covered_pixels():
     oracle = StaticMeshOracle(raycaster(v, t), "bumpy", ids=[1], moving={2}, triangle_ids=np.where(first_half, 3, 4))
     rig = StereoRig.endoscope(W, H)
     T = look_at([-0.004, 0.0, 0.004], [-0.003, 0.003, 0.033], [0.2, -1, 0])
-    cast = oracle.cast(0, rig.intrinsics.K, T, W, H)
+    cast = oracle.cast(0, rig.left, T)
     assert cast.depth.shape == (H, W) and cast.normals.shape == (H, W, 3) and cast.face_normals is not None
     assert np.array_equal(cast.instance_ids == 0, ~cast.hit) and set(np.unique(cast.instance_ids)) == {0, 3, 4}
     seg = np.array([[0, 1, 2, 5]], np.uint16)
@@ -385,7 +386,8 @@ def test_a_per_frame_oracle_replaces_the_static_mesh(dataset, tmp_path):
             p = d / eye / "gt" / f"{f:06d}.npz"
             with np.load(p) as z:
                 gt = {k: z[k] for k in z.files}
-            gt["depth"] = rc.cast(gt["K"], W, H, camera_in_mesh_frame(gt["T_world_cam"], f), normals="none")["depth"]
+            gt["depth"] = rc.cast(Camera.pinhole(gt["K"], W, H), camera_in_mesh_frame(gt["T_world_cam"], f),
+                                  normals="none")["depth"]
             np.savez_compressed(p, **gt)
 
     class SlidingTissue:
@@ -394,8 +396,8 @@ def test_a_per_frame_oracle_replaces_the_static_mesh(dataset, tmp_path):
         def __init__(self):
             self.mesh = StaticMeshOracle(rc, self.source)
 
-        def cast(self, frame, K, T_world_cam, width, height):
-            return self.mesh.cast(frame, K, camera_in_mesh_frame(T_world_cam, frame), width, height)
+        def cast(self, frame, camera, T_world_cam):
+            return self.mesh.cast(frame, camera, camera_in_mesh_frame(T_world_cam, frame))
 
         def covers(self, frame, segmentation):
             return np.ones(segmentation.shape, bool)

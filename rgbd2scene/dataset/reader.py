@@ -82,6 +82,26 @@ class Dataset:
         return float(self.K[0, 0])
 
     @cached_property
+    def rig(self):
+        """The stereo rig as rendered (:class:`~rgbd2scene.scene.rig.StereoRig`): ``dataset.json``'s
+        ``"camera"`` record (CONVENTIONS 1.2), else the rectified pair of its K and baseline."""
+        from rgbd2scene.camera import Camera
+        from rgbd2scene.scene.rig import StereoRig
+
+        record = self.meta.get("camera")
+        if isinstance(record, dict) and "left" in record:
+            try:
+                return StereoRig(Camera.from_dict(record["left"]), 0.0, right=Camera.from_dict(record["right"]),
+                                 R=record["R"], T=record["T"])
+            except (KeyError, TypeError, ValueError) as exc:
+                raise UserError(f"{self.root / 'dataset.json'}: bad 'camera' record ({exc})") from None
+        return StereoRig(Camera.from_K(self.K, self.width, self.height), self.baseline)
+
+    @property
+    def rectified(self) -> bool:
+        return self.rig.rectified
+
+    @cached_property
     def objects(self) -> dict[int, ObjectEntry]:
         """Object parts and tracked frames by id (dict or legacy list form of ``objects``)."""
         table = self.meta.get("objects") or {}
@@ -144,7 +164,9 @@ class Dataset:
                 names = z.files if keys is None else list(keys)
                 missing = [k for k in names if k not in z.files]
                 if missing:
-                    raise UserError(f"{path}: no {', '.join(missing)} in this file (rendered with --gt?)")
+                    hint = ("a raw (distorted) pair has correspondence, not disparity: render --rectify for "
+                            "disparity" if "disparity" in missing and not self.rectified else "rendered with --gt?")
+                    raise UserError(f"{path}: no {', '.join(missing)} in this file ({hint})")
                 names += [k for k in optional if k in z.files and k not in names]
                 return {k: z[k] for k in names}
         except UserError:

@@ -10,7 +10,7 @@ Topics (``prefix`` defaults to ``/stereo``; e.g. ``--prefix /dvrk/ECM`` mimics a
     {prefix}/left/camera_info         sensor_msgs/CameraInfo          left camera
     {prefix}/right/image_rect_color   sensor_msgs/Image rgb8          right image
     {prefix}/right/camera_info        sensor_msgs/CameraInfo          right camera
-    {prefix}/disparity                stereo_msgs/DisparityImage      left disparity
+    {prefix}/disparity                stereo_msgs/DisparityImage      left disparity (rectified datasets)
     {prefix}/depth/image_rect         sensor_msgs/Image 32FC1         left depth in metres, NaN = no surface
                                                                       (REP 118)
     {prefix}/left/segmentation        sensor_msgs/Image 16UC1         left instance ids, 0 = nothing
@@ -18,11 +18,12 @@ Topics (``prefix`` defaults to ``/stereo``; e.g. ``--prefix /dvrk/ECM`` mimics a
     /tf_static                        tf2_msgs/TFMessage              the rig and the capture frame, once,
                                                                       latched (ROS 1) / transient local (ROS 2)
 
-CameraInfo (the rectified pair, CONVENTIONS §2): plumb_bob with D = 0, R = I, K and P from the dataset's K,
-right P[0,3] = -fx·B. DisparityImage: f = fx, T = B, the disparity in pixels with invalid pixels set to
-min_disparity - 1 = -1 (the message's rule: "less than min_disparity is invalid"; min_disparity = 0),
-max_disparity = the frame's largest disparity rounded up, delta_d = the float32 step at that value (the map
-is continuous, not quantised), valid_window the whole image.
+CameraInfo (CONVENTIONS §2): for the rectified pair plumb_bob with D = 0, R = I, K and P from the dataset's K,
+right P[0,3] = -fx·B; for a raw pair each eye's real D (plumb_bob or rational_polynomial) and K, with R and P
+of its rectification (``cv2.stereoRectify``, alpha 0). DisparityImage: f = fx, T = B, the disparity in
+pixels with invalid pixels set to min_disparity - 1 = -1 (the message's rule: "less than min_disparity is
+invalid"; min_disparity = 0), max_disparity = the frame's largest disparity rounded up, delta_d = the float32
+step at that value (the map is continuous, not quantised), valid_window the whole image.
 
 Frames (REP 103 / 105; ``world`` and ``endoscope`` are configurable names):
 
@@ -59,6 +60,7 @@ from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
 from rgbd2scene.export.common import ExportSummary, complete_frames, frame_indices
 from rgbd2scene.files.atomic import atomic_place
+from rgbd2scene.scene.rig import StereoRig, rectification
 
 #: 2024-01-01T00:00:00Z: the default first stamp (a fixed epoch: reproducible bags; not 0, which tf reads as
 #: "latest available")
@@ -128,12 +130,16 @@ def stamp_ns(index: int, rate: float, start: float = DEFAULT_START_S) -> int:
     return int(round(start * 1e9)) + int(round(index * 1e9 / rate))
 
 
-def camera_info_matrices(K: np.ndarray, baseline: float, eye: str) -> dict[str, np.ndarray]:
-    """D, K, R, P of one eye of the rectified pair (P[0,3] = -fx·B on the right)."""
-    P = np.hstack([K, np.zeros((3, 1))])
-    if eye == "right":
-        P[0, 3] = -K[0, 0] * baseline
-    return {"d": np.zeros(5), "k": np.asarray(K, np.float64).ravel(), "r": np.eye(3).ravel(), "p": P.ravel()}
+def camera_info_matrices(rig: StereoRig, eye: str) -> dict[str, np.ndarray]:
+    """D, K, R, P of one eye: for the rectified pair D = 0, R = I, P = [K | 0] (P[0,3] = -fx·B on the right);
+    for a raw pair the eye's own D and K, and R, P of its rectification (``cv2.stereoRectify``, alpha 0), as
+    ROS's stereo_image_proc expects them."""
+    rect = rectification(rig)
+    R, P = (rect.R1, rect.P1) if eye == "left" else (rect.R2, rect.P2)
+    camera = rig.camera(eye)
+    d = np.asarray(camera.D, np.float64) if camera.D else np.zeros(5)
+    return {"d": d, "k": camera.K.ravel(), "r": np.asarray(R, np.float64).ravel(),
+            "p": np.asarray(P, np.float64).ravel(), "distortion_model": camera.distortion_model}
 
 
 def disparity_message_values(disparity: np.ndarray) -> tuple[np.ndarray, float, float, float]:
@@ -202,7 +208,7 @@ class _Messages:
         roi = self.make("sensor_msgs/msg/RegionOfInterest", x_offset=0, y_offset=0, height=0, width=0,
                         do_rectify=False)
         return self.make(CAMERA_INFO, header=self.header(stamp, frame_id), height=height, width=width,
-                         distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi, **matrices)
+                         binning_x=0, binning_y=0, roi=roi, **matrices)
 
     def disparity(self, stamp: int, frame_id: str, disparity: np.ndarray, fx: float, baseline: float):
         image, min_d, max_d, delta = disparity_message_values(disparity)
@@ -291,25 +297,27 @@ def export_ros(dataset: Dataset, out: str | Path, options: RosOptions | None = N
     messages = _Messages(options.version)
     summary = ExportSummary(f"ros{options.version}", out)
     width, height, fx, baseline = dataset.width, dataset.height, dataset.fx, dataset.baseline
-    info = {eye: camera_info_matrices(dataset.K, baseline, eye) for eye in EYES}
+    info = {eye: camera_info_matrices(dataset.rig, eye) for eye in EYES}
     frame_ids = {"left": options.left_frame, "right": options.right_frame}
     static = static_transforms(dataset, options)
     try:
         with atomic_place(out) as tmp, _BagWriter(tmp, messages) as bag:
             bag.add(topics.tf_static, TF, latched=True)
+            rectified = dataset.rectified  # a raw pair has no disparity: its topic is left out
             for topic, msgtype in ((topics.tf, TF), (topics.left_image, IMAGE), (topics.left_info, CAMERA_INFO),
                                    (topics.right_image, IMAGE), (topics.right_info, CAMERA_INFO),
                                    (topics.disparity, DISPARITY), (topics.depth, IMAGE),
                                    (topics.segmentation, IMAGE)):
-                bag.add(topic, msgtype)
+                if rectified or topic != topics.disparity:
+                    bag.add(topic, msgtype)
             first = True
             for index in frame_indices(dataset, progress, f"export ros{options.version}"):
                 stamp = stamp_ns(index, rate, options.start)
                 if first:
                     bag.write(topics.tf_static, stamp, messages.tf(stamp, static))
                     first = False
-                left = dataset.gt("left", index, ("depth", "disparity", "segmentation", "T_world_cam",
-                                                  "object_ids", "object_poses"))
+                left = dataset.gt("left", index, ("depth", "segmentation", "T_world_cam", "object_ids",
+                                                  "object_poses"), optional=("disparity",))
                 moving = [(options.world, options.scope, scope_pose(left["T_world_cam"]))]
                 moving += [(options.world, f"object_{int(oid)}", BODY_FROM_OPTICAL @ T)
                            for oid, T in zip(left["object_ids"], left["object_poses"], strict=True)]
@@ -320,8 +328,9 @@ def export_ros(dataset: Dataset, out: str | Path, options: RosOptions | None = N
                                                                  "rgb8"))
                     bag.write(info_topic, stamp, messages.camera_info(stamp, frame_ids[eye], width, height,
                                                                       info[eye]))
-                bag.write(topics.disparity, stamp, messages.disparity(stamp, frame_ids["left"], left["disparity"],
-                                                                      fx, baseline))
+                if rectified:
+                    bag.write(topics.disparity, stamp, messages.disparity(stamp, frame_ids["left"],
+                                                                          left["disparity"], fx, baseline))
                 bag.write(topics.depth, stamp, messages.image(stamp, frame_ids["left"],
                                                               left["depth"].astype("<f4"), "32FC1"))
                 bag.write(topics.segmentation, stamp, messages.image(stamp, frame_ids["left"],

@@ -1,7 +1,9 @@
 """Raw render passes -> the ground-truth maps of CONVENTIONS.md section 3 (numpy only, no ``bpy``).
 
-The renderer (``render/render_frames.py``) reads Blender's passes of one eye from its data render
-(1 sample per pixel through the pixel centre, see there) and hands them to :func:`gt_from_passes`:
+The ground truth comes from the scene model (:mod:`rgbd2scene.groundtruth.model_maps`); Blender's passes are
+its independent cross-check (``render --gt-source blender``). The renderer (``render/frames.py``) then reads
+the passes of one eye from its data render (1 sample per pixel through the pixel centre, see there) and
+hands them to :func:`gt_from_passes`:
 
 - ``Depth`` (planar z, Blender writes 1e10 where no surface) -> ``depth`` with NaN on background;
 - ``disparity`` = fx*B/z via :func:`rgbd2scene.conventions.disparity_from_depth`;
@@ -127,7 +129,7 @@ def segmentation_from_pass(index: np.ndarray, mask: np.ndarray | None = None) ->
 def gt_from_passes(depth_pass: np.ndarray, normal_world: np.ndarray | None, vector: np.ndarray | None,
                    index: np.ndarray | None, K: np.ndarray, T_world_cam: np.ndarray, baseline: float, *,
                    first: bool = False, last: bool = False, object_ids=None, object_poses=None,
-                   maps: Iterable[str] = MAPS) -> dict[str, np.ndarray]:
+                   maps: Iterable[str] = MAPS, D=None) -> dict[str, np.ndarray]:
     """The section-3 ground truth of one eye and frame from its raw passes.
 
     Parameters
@@ -150,7 +152,9 @@ def gt_from_passes(depth_pass: np.ndarray, normal_world: np.ndarray | None, vect
     object_ids, object_poses
         Tracked objects: ids (N,) and T_world_obj (N, 4, 4); empty when None.
     maps
-        The maps to compute (subset of :data:`MAPS`); the four matrices are always included.
+        The maps to compute (subset of :data:`MAPS`); the matrices are always included.
+    D
+        This eye's distortion (None: zeros (5,), a pinhole; Blender renders pinholes only).
     """
     maps = tuple(maps)
     unknown = set(maps) - set(MAPS)
@@ -190,6 +194,7 @@ def gt_from_passes(depth_pass: np.ndarray, normal_world: np.ndarray | None, vect
     if "segmentation" in maps:
         out["segmentation"] = segmentation_from_pass(need("segmentation", index, None), mask)
     out["K"] = K.copy()
+    out["D"] = np.zeros(5) if D is None else np.asarray(D, dtype=np.float64).ravel()
     out["T_world_cam"] = T.copy()
     ids = np.asarray([] if object_ids is None else object_ids, dtype=np.uint16).reshape(-1)
     poses = (np.zeros((0, 4, 4)) if object_poses is None

@@ -18,9 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.conventions import in_image, invert_pose, project, transform_points
+from rgbd2scene.camera import Camera
+from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
+from rgbd2scene.reconstruct.mesh import vertex_normals
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
 
@@ -68,6 +70,7 @@ class SceneGeometry:
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
+        self._static_normals: np.ndarray | None = None
         self._lock = threading.RLock()  # the render worker asks from two threads
 
     def part_vertices(self, index: int, frame: int) -> np.ndarray:
@@ -102,48 +105,67 @@ class SceneGeometry:
     def _eye_poses(self, frame: int) -> list[np.ndarray]:
         return [self.description.camera_pose(frame, eye) for eye in ("left", "right")]
 
-    def in_view(self, frame: int, K: np.ndarray, width: int, height: int) -> np.ndarray:
+    def in_view(self, frame: int, cameras) -> np.ndarray:
         """Indices (into :attr:`triangles`) of the triangles that ``frame``'s two eyes may see
-        (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`), computed once per frame and view."""
-        key = (int(frame), int(width), int(height), np.asarray(K, dtype=np.float64).tobytes())
+        (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`), computed once per frame and view.
+
+        ``cameras``: the (left, right) cameras, or one camera looked through at both eyes' poses."""
+        pair = tuple(cameras) if isinstance(cameras, tuple | list) else (cameras, cameras)
+        key = (int(frame), pair)
         with self._lock:
             out = self._in_view.get(key)
             if out is None:
-                out = triangles_in_view(self.vertices(frame), self.triangles, K, width, height,
-                                        self._eye_poses(frame))
+                out = triangles_in_view(self.vertices(frame), self.triangles,
+                                        list(zip(pair, self._eye_poses(frame), strict=True)))
                 self._in_view[key] = out
                 while len(self._in_view) > self._cache_size:
                     self._in_view.popitem(last=False)
             return out
 
-    def raycaster(self, frame: int, K: np.ndarray | None = None, width: int = 0, height: int = 0,
-                  T_world_cam: np.ndarray | None = None) -> Raycaster:
-        """The scene at ``frame`` ready for ray casting from the camera ``T_world_cam`` (K, width, height).
+    def raycaster(self, frame: int, camera: Camera | None = None, T_world_cam: np.ndarray | None = None) -> Raycaster:
+        """The scene at ``frame`` ready for ray casting from ``camera`` at ``T_world_cam``.
 
-        When that camera is one of the model's eyes at ``frame``, only the triangles the two eyes can see
-        are cast against (:meth:`in_view`: the same hits, and a few thousand triangles instead of the whole
-        deforming tissue to build an acceleration structure over, every frame); otherwise, or without a
-        camera, the whole scene.
+        When that camera is at one of the model's eyes at ``frame``, only the triangles ``camera`` can see
+        from the two eyes are cast against (:meth:`in_view`: the same hits, and a few thousand triangles
+        instead of the whole deforming tissue to build an acceleration structure over, every frame);
+        otherwise, or without a camera, the whole scene.
         """
-        culled = T_world_cam is not None and any(np.array_equal(T_world_cam, e) for e in self._eye_poses(frame))
+        culled = (camera is not None and T_world_cam is not None
+                  and any(np.array_equal(T_world_cam, e) for e in self._eye_poses(frame)))
         key: tuple = (0 if self.static else int(frame),)
         if culled:
-            key += (int(width), int(height), np.asarray(K, dtype=np.float64).tobytes())
+            key += (camera,)
             if self.static:  # the camera moves: the view changes with the frame
                 key += (int(frame),)
         with self._lock:
             rc = self._cache.get(key)
             if rc is None:
-                subset = self.in_view(frame, K, width, height) if culled else None
-                rc = Raycaster(self.vertices(frame), self.triangles, subset)
+                subset = self.in_view(frame, camera) if culled else None
+                rc = Raycaster(self.vertices(frame), self.triangles, subset, self._normals(frame, subset))
                 self._cache[key] = rc
                 while len(self._cache) > self._cache_size:
                     self._cache.popitem(last=False)
             self._cache.move_to_end(key)
             return rc
 
-    def view_support(self, index: int, frame: int, K: np.ndarray, width: int, height: int) -> np.ndarray:
-        """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes needs.
+    def _normals(self, frame: int, subset: np.ndarray | None) -> np.ndarray | None:
+        """Angle-weighted vertex normals for a ray caster of ``frame``: a static scene's, once; a moving one's
+        from the triangles around ``subset`` only (every triangle sharing a vertex with one: exact at the
+        vertices a cast against ``subset`` can hit); None (the caster computes them) for the whole scene."""
+        if self.static:
+            if self._static_normals is None:
+                self._static_normals = vertex_normals(self.vertices(frame), self.triangles, "angle")
+            return self._static_normals
+        if subset is None:
+            return None
+        seen = np.zeros(len(self.vertices(frame)), bool)
+        seen[self.triangles[subset]] = True
+        around = self.triangles[seen[self.triangles].any(axis=1)]
+        return vertex_normals(self.vertices(frame), around, "angle")
+
+    def view_support(self, index: int, frame: int, cameras) -> np.ndarray:
+        """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes (``cameras``:
+        left and right, or one camera for both) needs.
 
         Those of its triangles in view (:meth:`in_view`) and of every triangle sharing a vertex with one:
         each vertex in view keeps all its triangles, so its smooth normal, and every hit, are those of the
@@ -152,7 +174,7 @@ class SceneGeometry:
         """
         m = self.meshes[index]
         first, end = self._triangle_offsets[index], self._triangle_offsets[index + 1]
-        visible = self.in_view(frame, K, width, height)
+        visible = self.in_view(frame, cameras)
         visible = visible[(visible >= first) & (visible < end)] - first
         seen = np.zeros(len(m.vertices), bool)
         seen[m.triangles[visible]] = True
@@ -160,12 +182,12 @@ class SceneGeometry:
         keep[m.triangles[seen[m.triangles].any(axis=1)]] = True
         return np.flatnonzero(keep)
 
-    def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int,
+    def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray,
              normals: str = "smooth") -> dict[str, np.ndarray]:
         """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``) plus ``instance_ids``
         (H, W) uint16 (0 on a miss)."""
-        rc = self.raycaster(frame, K, width, height, T_world_cam)
-        hit = rc.cast(K, width, height, T_world_cam, normals=normals, with_uvs=True)
+        rc = self.raycaster(frame, camera, T_world_cam)
+        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True)
         tri = hit["triangle_ids"]
         hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids[np.maximum(tri, 0)], 0).astype(np.uint16)
         return hit
@@ -190,35 +212,39 @@ class SceneGeometry:
 
         return at
 
-    def hidden(self, points: np.ndarray, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int,
-               frame: int) -> np.ndarray:
-        """Bool (...): each world point (NaN: False) is hidden from the camera at ``frame``: it projects
-        outside the image (or behind the camera), or another surface of that frame lies in front of it."""
+    def hidden(self, points: np.ndarray, camera: Camera, T_world_cam: np.ndarray, frame: int) -> np.ndarray:
+        """Bool (...): each world point (NaN: False) is hidden from ``camera`` at ``T_world_cam`` at ``frame``:
+        it projects outside the image (or behind the camera, or beyond the lens's fold), or another surface
+        of that frame lies in front of it."""
         p = np.asarray(points, dtype=np.float64)
         valid = np.all(np.isfinite(p), axis=-1)
         if not valid.any():
             return valid
-        u, v = project(transform_points(invert_pose(T_world_cam), p), K)
-        inside = in_image(u, v, width, height)
+        u, v = camera.project(transform_points(invert_pose(T_world_cam), p))
+        inside = camera.in_image(u, v)
         centre = np.asarray(T_world_cam, dtype=np.float64)[:3, 3]
         # only points that project into the image are cast at: the segment to such a point lies in the
         # camera's view (the others are hidden anyway, and a NaN ray has no defined hit)
         directions = np.where(inside[..., None], p - centre, (0.0, 0.0, 1.0))
-        rc = self.raycaster(frame, K, width, height, T_world_cam)
+        rc = self.raycaster(frame, camera, T_world_cam)
         blocked = rc.blocked(centre, directions, 1.0 - OCCLUSION_REL)  # t = 1 at the point itself
         return valid & (~inside | blocked)
 
-def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, K: np.ndarray, width: int,
-                   height: int) -> dict[str, np.ndarray]:
-    """``occluded_forward`` / ``occluded_backward`` (H, W) bool of one eye at ``frame`` (CONVENTIONS §3).
 
-    The surface point under each pixel (ray cast of the model) is followed to the next / previous frame
-    (same triangle and barycentric weights, that frame's vertices) and looked at from that frame's camera:
-    occluded when it leaves the image or another surface hides it. Pixels without surface are False; on the
-    last (first) frame, where there is no next (previous) frame, every surface pixel is True.
+def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, camera: Camera,
+                   hit: dict | None = None) -> dict[str, np.ndarray]:
+    """``occluded_forward`` / ``occluded_backward`` (H, W) bool of one eye (seen through ``camera``) at ``frame``
+    (CONVENTIONS §3).
+
+    The surface point under each pixel (ray cast of the model, or ``hit``, that cast already made) is followed
+    to the next / previous frame (same triangle and barycentric weights, that frame's vertices) and looked at
+    from that frame's camera: occluded when it leaves the image or another surface hides it. Pixels without
+    surface are False; on the last (first) frame, where there is no next (previous) frame, every surface
+    pixel is True.
     """
     description = geometry.description
-    hit = geometry.cast(frame, K, description.camera_pose(frame, eye), width, height, normals="none")
+    if hit is None:
+        hit = geometry.cast(frame, camera, description.camera_pose(frame, eye), normals="none")
     surface = hit["triangle_ids"] >= 0
     moved_to = geometry.follow(hit["triangle_ids"], hit["uvs"])
     out = {}
@@ -227,5 +253,5 @@ def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, K
             out[key] = surface.copy()
             continue
         moved = moved_to(other)
-        out[key] = geometry.hidden(moved, K, description.camera_pose(other, eye), width, height, other) & surface
+        out[key] = geometry.hidden(moved, camera, description.camera_pose(other, eye), other) & surface
     return out

@@ -23,8 +23,8 @@ class Field:
     optional: bool = False
     doc: str = ""
 
-    def expected_shape(self, height: int, width: int, count: int | None = None) -> tuple:
-        sizes = {"H": height, "W": width, "N": count}
+    def expected_shape(self, height: int, width: int, count: int | None = None, d: int | None = None) -> tuple:
+        sizes = {"H": height, "W": width, "N": count, "D": d}
         return tuple(sizes.get(s, s) if isinstance(s, str) else s for s in self.shape)
 
 
@@ -41,7 +41,12 @@ SCHEMA: dict[str, Field] = {
     "occluded_forward": Field("bool", ("H", "W"), optional=True,
                               doc="the surface point is hidden or leaves the image in the next frame"),
     "occluded_backward": Field("bool", ("H", "W"), optional=True, doc="likewise for the previous frame"),
+    "correspondence": Field("float32", ("H", "W", 2), nan_where_no_surface=True, optional=True,
+                            doc="(du, dv) pixels to the other eye's pixel seeing the same point; NaN where it "
+                                "does not (raw pairs, in place of disparity)"),
     "K": Field("float64", (3, 3), per_pixel=False, doc="intrinsics of this eye"),
+    "D": Field("float64", ("D",), per_pixel=False, optional=True,
+               doc="distortion of this eye, OpenCV order (4, 5, 8, 12 or 14); zeros for a pinhole"),
     "T_world_cam": Field("float64", (4, 4), per_pixel=False, doc="pose of this eye (OpenCV axes)"),
     "object_ids": Field("uint16", ("N",), per_pixel=False, doc="ids of tracked object parts and frames"),
     "object_poses": Field("float64", ("N", 4, 4), per_pixel=False, doc="T_world_obj of each, in that order"),
@@ -52,6 +57,8 @@ MAPS = tuple(k for k, f in SCHEMA.items() if f.per_pixel and not f.optional)
 OPTIONAL_MAPS = tuple(k for k, f in SCHEMA.items() if f.per_pixel and f.optional)
 #: Keys written with every frame whatever maps are chosen.
 MATRICES = tuple(k for k, f in SCHEMA.items() if not f.per_pixel)
+#: Lengths a distortion vector ``D`` may have (OpenCV's).
+DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 #: Blender's Depth pass writes 1e10 where there is no surface; values at or above this are "no surface".
 BACKGROUND_DEPTH = 1e9
 

@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.capture.readers import Capture
 from rgbd2scene.capture.sensors import infer_sensor
 from rgbd2scene.conventions import invert_pose
@@ -221,7 +222,7 @@ def frame_agreement(mesh: Mesh, captures: list[Capture], poses: np.ndarray, rc=N
 
 def rendered_depths(rc, captures: list[Capture], poses: np.ndarray) -> list[np.ndarray]:
     """The depth maps of a ray-cast mesh seen by each frame's camera at its pose (NaN on a miss)."""
-    return [rc.cast(c.intrinsics.K, c.intrinsics.width, c.intrinsics.height, T, normals="none")["depth"]
+    return [rc.cast(Camera(c.intrinsics), T, normals="none")["depth"]
             for c, T in zip(captures, poses, strict=True)]
 
 

@@ -17,8 +17,11 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.dataset.calibration import CALIBRATION_YAML, write_calibration
 from rgbd2scene.environment import EnvironmentOptions
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.files.atomic import ensure_output_dir, read_json_object
@@ -26,12 +29,15 @@ from rgbd2scene.groundtruth.passes import parse_maps
 from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
 from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
 from rgbd2scene.scene.model import SceneDescription
+from rgbd2scene.scene.raw import rectified_rig
+from rgbd2scene.scene.rig import StereoRig
 from rgbd2scene.sensor import SensorOptions
 from rgbd2scene.stages.blender import Event, Task, run_task
 from rgbd2scene.versions import software_versions
 
 DENOISERS = ("none", "oidn", "optix")
 DEVICES = ("CPU", "GPU")
+GT_SOURCES = ("model", "blender")
 #: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise beats 16 undenoised samples against a
 #: 256-sample reference in about 0.3 of the time (benchmarks/results/render.md).
 DEFAULT_SAMPLES = 1
@@ -43,12 +49,34 @@ GT_SAMPLES, GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES = 1, 0.01, 0
 GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_bounces": GT_MAX_BOUNCES,
              "material_override": "black emission", "passes": ["Depth", "Normal", "Vector", "IndexOB"],
              "exr": "32-bit float, multilayer", "persistent_data": False}
+#: How the scene model gives the ground truth (groundtruth/model_maps.py; recorded in dataset.json).
+GT_MODEL = {"source": "scene model", "ray_caster": "Open3D RaycastingScene (float32), one ray per pixel centre "
+            "of each eye's camera", "normals": "interpolated angle-weighted vertex normals",
+            "flow": "hit point followed on its triangle (same barycentrics) to the other frame, projected"}
 #: dataset.json entries that must match for a re-run to resume into the same folder (besides the
 #: render options marked ``resume`` and the scene's hash).
 RESUME_KEYS = ("width", "height", "frames", "baseline", "K")
 #: Share of a frame's progress-bar step given when its images are written (the data render that
 #: completes it takes the rest: about a tenth of the time).
 RGB_SHARE = 0.9
+
+
+#: Memory one pixel of a stereo frame takes while rendering: Cycles' float buffers of both views (combined,
+#: denoising albedo and normal, passes) and the ground truth's per-pixel rays, hits and maps, with room to spare.
+BYTES_PER_PIXEL = 600
+
+
+def render_memory_bytes(width: int, height: int) -> int:
+    """An estimate of the memory a render at width x height needs (:data:`BYTES_PER_PIXEL`)."""
+    return int(width) * int(height) * BYTES_PER_PIXEL
+
+
+def machine_memory_bytes() -> int | None:
+    """This machine's physical memory (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -83,6 +111,14 @@ class RenderOptions:
     seed: int = option(0, "Cycles seed (animated per frame)", resume=True)
     persistent_data: bool = option(True, "keep Cycles' scene data (BVH) between the renders of a chunk",
                                    cli=False)
+    gt_source: str = option("model", "where the ground truth comes from: model (ray casting the scene model along "
+                            "each pixel's ray, no data render) or blender (Blender's passes: the independent "
+                            "cross-check; pinhole rectified rigs only)", choices=GT_SOURCES, resume=True)
+    rectify: bool = option(False, "render the rectified pair of a raw scope (distortion or unequal eyes) as "
+                           "cv2.stereoRectify (alpha 0) defines it, with disparity; default: the raw pair, as the "
+                           "scope delivers it, with correspondence", resume=True)
+    gt_only: bool = option(False, "write (or rewrite) only the ground truth of the frames, from the scene model "
+                           "without Blender: regenerates or extends an existing dataset's npz files")
     view_culling: bool = option(True, "data renders sync only the triangles the frame's eyes see and their "
                                 "neighbours (the same passes, bit for bit; off: the whole scene)", cli=False)
     sensor: SensorOptions = option(SensorOptions(), "the scope camera's exposure, sensor and optics effects "
@@ -110,6 +146,11 @@ class RenderOptions:
             size = tuple(int(v) for v in self.size)
             if len(size) != 2 or min(size) <= 0:
                 raise OptionError("size", f"must be positive, got {'x'.join(map(str, size))}")
+            need, have = render_memory_bytes(*size), machine_memory_bytes()
+            if have and need > have:
+                raise OptionError("size", f"{size[0]}x{size[1]} needs about {need / 2**30:,.0f} GiB to render "
+                                  f"(estimate: {BYTES_PER_PIXEL} bytes per pixel), more than this machine's "
+                                  f"{have / 2**30:.0f} GiB")
         nested = {}
         for name, cls in (("sensor", SensorOptions), ("environment", EnvironmentOptions)):
             value = getattr(self, name)
@@ -179,11 +220,13 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
     rel = Path(os.path.relpath(scene_dir.resolve(), out_dir.resolve()))
     table = description.object_table()
     render = to_record(options)
-    render.update(engine="CYCLES", gt=list(options.maps), gt_render=GT_RENDER)
+    render.update(engine="CYCLES", gt=list(options.maps),
+                  gt_render=GT_RENDER if options.gt_source == "blender" else GT_MODEL)
     return {
         "width": intr.width, "height": intr.height, "frames": frames, "fps": description.path.fps,
         "baseline": description.rig.baseline, "K": intr.K.tolist(), "eyes": list(ds.EYES),
-        "intrinsics": intr.to_dict(),
+        "intrinsics": intr.to_dict(), "D": list(description.rig.left.D),
+        "camera": camera_record(description.rig),
         "objects": table["objects"], "classes": table["classes"], "tracked_frames": table["tracked_frames"],
         "scene": {"dir": rel.as_posix(),
                   "mesh": (rel / tissue.geometry).as_posix() if tissue else None,
@@ -203,10 +246,19 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
     }
 
 
-def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path) -> None:
+def camera_record(rig: StereoRig) -> dict:
+    """dataset.json's ``"camera"`` (CONVENTIONS 1.2): rectified or raw, both eyes' cameras, R and T."""
+    return {"rectified": rig.rectified, "left": rig.left.to_dict(), "right": rig.right.to_dict(),
+            "distortion_model": rig.left.distortion_model, "R": [list(r) for r in rig.R], "T": list(rig.T)}
+
+
+def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path, only=None) -> None:
+    """Refuse to resume into a dataset rendered with other settings (``only``: compare just these render
+    options, e.g. those of the ground truth)."""
     diffs = [k for k in RESUME_KEYS if existing.get(k) != info[k]]
     old = existing.get("render", {})
-    diffs += [f"render.{k}" for k in resume_diff(options, {**old, "gt": ",".join(old.get("gt", []))})]
+    diffs += [f"render.{k}" for k in resume_diff(options, {**old, "gt": ",".join(old.get("gt", []))})
+              if only is None or k in only]
     if existing.get("scene", {}).get("scene_json_sha1") != info["scene"]["scene_json_sha1"]:
         diffs.append("scene (scene.json changed)")
     if diffs:
@@ -223,10 +275,18 @@ def scene_environment(options: RenderOptions, description: SceneDescription) -> 
 
 
 def render_model(description: SceneDescription, options: RenderOptions) -> SceneDescription:
-    """The scene model as rendered: the rig resized to ``options.size`` (K follows ``Intrinsics.resized``)."""
-    if options.size is None:
-        return description
-    return replace(description, rig=description.rig.resized(*options.size))
+    """The scene model as rendered: the rig resized to ``options.size`` (K follows ``Intrinsics.resized``),
+    then, with ``options.rectify``, a raw rig replaced by its rectified pair (the left eye's poses turned by
+    R1: T_world_rect = T_world_left R1^T)."""
+    if options.size is not None:
+        description = replace(description, rig=description.rig.resized(*options.size))
+    if options.rectify and not description.rig.rectified:
+        rig, R1 = rectified_rig(description.rig)
+        turn = np.eye(4)
+        turn[:3, :3] = R1.T
+        path = replace(description.path, poses=description.path.poses @ turn)
+        description = replace(description, rig=rig, path=path)
+    return description
 
 
 def render_task(scene_dir: Path, out_dir: Path, description: SceneDescription, options: RenderOptions,
@@ -304,6 +364,12 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     if not 0 <= s < e <= n:
         raise UserError(f"--start/--end: [{s}, {e}) is not a non-empty range inside the {n} frames")
     description = render_model(description, options)
+    if options.maps and options.gt_source == "blender" and not description.rig.rectified:
+        raise UserError("--gt-source: Blender's passes are those of a pinhole: a raw scope (distortion or unequal "
+                        "eyes) takes its ground truth from the scene model (or render --rectify)")
+    if options.maps and options.gt_source == "model" and not all(
+            (scene_dir / part.geometry).is_file() for _, part in description.parts()):
+        options = replace(options, gt_source="blender")  # a scene folder with its .blend only: Blender's passes
     out = ensure_output_dir(out_dir)
 
     info = dataset_info(scene_dir, out, description, n, options)
@@ -312,6 +378,8 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
         _check_resume(ds.read_dataset_json(out), info, options, json_path)
     else:
         ds.write_dataset_json(out, info)
+    if not (out / CALIBRATION_YAML).is_file():
+        write_calibration(out, description.rig)
     ds.sweep_dead_runs(out)
     job = RenderJob(scene_dir, out, description, options, n, s, e, [])
     job.todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=job.with_gt, geometry=job.with_geometry)]
@@ -334,7 +402,10 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
         Show a tqdm bar.
     """
     t_start = time.perf_counter()
-    job = prepare_render(scene_dir, out_dir, replace(options or RenderOptions(), **overrides), python)
+    options = replace(options or RenderOptions(), **overrides)
+    if options.gt_only:
+        return render_gt_only(scene_dir, out_dir, options, progress=progress, python=python)
+    job = prepare_render(scene_dir, out_dir, options, python)
     chunks = job.chunks()
     stats: dict[int, dict] = {}
     starts: list[float] = []
@@ -363,6 +434,68 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
             "wall_seconds_per_frame": wall / len(done) if done else None,
             "worker_start_seconds": sum(starts) / len(starts) if starts else None,
             "max_rss_mb": max((d.get("rss", 0.0) for d in done), default=None)}
+
+
+def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions | None = None, *,
+                   progress: bool = True, python: str | None = None, **overrides) -> dict:
+    """Write the ground truth of frames [start, end) of DATASET from the scene model, without Blender
+    (``render --gt-only``): every npz (and ``geometry/`` file) of those frames is computed again and replaced
+    atomically, so a dataset gains a new key, or more frames, without a render. The same settings give the
+    same bytes as a full render. Returns a summary dict."""
+    from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
+
+    t_start = time.perf_counter()
+    options = replace(options or RenderOptions(), **overrides, gt_only=False)
+    try:
+        options = options.validated()
+    except OptionError as exc:
+        raise UserError(f"{flag_of(RenderOptions, exc.name)}: {exc.message}") from None
+    if not options.maps:
+        raise UserError("--gt-only: --gt none leaves nothing to write")
+    if options.gt_source != "model":
+        raise UserError("--gt-only: the ground truth without Blender comes from the scene model "
+                        "(--gt-source model)")
+    scene_dir, _record, description = load_scene(scene_dir, python)
+    missing = [part.geometry for _, part in description.parts() if not (scene_dir / part.geometry).is_file()]
+    if missing:
+        raise UserError(f"{scene_dir}: --gt-only needs the scene's geometry files ({', '.join(missing)} missing)")
+    n = description.path.frames if options.frames is None else int(options.frames)
+    if n < 1 or n > description.path.frames:
+        raise UserError(f"--frames: {n} is not between 1 and the {description.path.frames} frames of the camera "
+                        f"path in {scene_dir / SCENE_JSON}")
+    s = 0 if options.start is None else int(options.start)
+    e = n if options.end is None else int(options.end)
+    if not 0 <= s < e <= n:
+        raise UserError(f"--start/--end: [{s}, {e}) is not a non-empty range inside the {n} frames")
+    out = ensure_output_dir(out_dir)
+    json_path = out / ds.DATASET_JSON
+    existing = ds.read_dataset_json(out) if json_path.is_file() else None
+    if existing is not None and options.size is None:  # the dataset's own size
+        options = replace(options, size=(int(existing["width"]), int(existing["height"])))
+    description = render_model(description, options)
+    info = dataset_info(scene_dir, out, description, n, options)
+    if existing is not None:
+        # the images' settings (samples, denoiser, seed) do not matter here: only the ground truth's
+        _check_resume(existing, info, options, json_path, only=("gt", "gt_source"))
+    else:
+        ds.write_dataset_json(out, info)
+    if not (out / CALIBRATION_YAML).is_file():
+        write_calibration(out, description.rig)
+    ds.sweep_dead_runs(out)
+    model = ModelGroundTruth.of_scene(description, scene_dir, n, options.maps)
+    bar = _progress_bar(e - s, progress)
+    try:
+        with ds.scratch_dir(out) as scratch:
+            for index in range(s, e):
+                model.write(out, index, scratch)
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    wall = time.perf_counter() - t_start
+    return {"dataset": str(out), "frames": n, "range": [s, e], "written": e - s, "rendered": e - s, "skipped": 0,
+            "seconds": wall, "seconds_per_frame": wall / (e - s)}
 
 
 def _progress_bar(total: int, enabled: bool):

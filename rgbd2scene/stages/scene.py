@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics, load_camera_json
+from rgbd2scene.camera import Camera, load_camera
+from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import link_or_copy, read_json_object, write_json
 from rgbd2scene.files.images import read_image
@@ -33,7 +34,7 @@ from rgbd2scene.scene.paths import (
     make_path,
     path_coverage,
 )
-from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig
+from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig, read_scope_calibration
 from rgbd2scene.stages.blender import Task, run_task
 from rgbd2scene.stages.render import parse_size
 
@@ -45,9 +46,8 @@ DEFAULT_LIGHT_W = 0.35
 #: How far outside each lens a fibre outlet ends (two-outlet light), metres.
 OUTLET_MARGIN_M = 0.0015
 
-
-def _scope_camera(path: str) -> Intrinsics:
-    return load_camera_json(path)[0]
+#: ``--path capture``: the digital twin's path, the scope still at the capture's own camera.
+CAPTURE_PATH = "capture"
 
 
 @dataclass
@@ -57,9 +57,16 @@ class SceneOptions:
     size: tuple[int, int] = option(DEFAULT_SIZE, "endoscope image size WxH", parse=parse_size, metavar="WxH")
     fov_x_deg: float = option(DEFAULT_FOV_X_DEG, "horizontal field of view, degrees", flag="--fov")
     scope_camera: str | None = option(None, "endoscope intrinsics as a camera JSON (fx, fy, cx, cy, width, "
-                                      "height); overrides --size and --fov", file=True)
+                                      "height, optionally distortion: OpenCV's D; both eyes share it, --baseline "
+                                      "apart); overrides --size and --fov", file=True)
+    scope_calib: str | None = option(None, "two calibrated scope eyes: an OpenCV FileStorage YAML (K1 D1 K2 D2 R "
+                                     "T, image_width, image_height), a calibration JSON or a Hamlyn folder "
+                                     "(image size from --size); overrides --scope-camera, --size, --fov and "
+                                     "--baseline", file=True, metavar="FILE")
     baseline: float = option(DEFAULT_BASELINE, "stereo baseline, metres")
-    path: str = option("scan", "generated camera path", choices=tuple(PATH_GENERATORS))
+    path: str = option("scan", "generated camera path, or capture: the digital twin, the scope held still at the "
+                       "capture's own camera (its K and image size; for stereo input the calibrated pair itself)",
+                       choices=(*PATH_GENERATORS, CAPTURE_PATH))
     path_file: str | None = option(None, "JSON path file of waypoints (overrides --path)", file=True)
     frames: int = option(60, "frames in the path")
     fps: float = option(30.0, "frames per second")
@@ -85,8 +92,10 @@ class SceneOptions:
         """The stereo rig; :class:`OptionError` naming the field when a value is implausible."""
         if self.baseline <= 0 or self.baseline > 0.1:
             raise OptionError("baseline", f"{self.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
+        if self.scope_calib is not None:
+            return read_scope_calibration(self.scope_calib, self.size)
         if self.scope_camera is not None:
-            return StereoRig(_scope_camera(self.scope_camera), self.baseline)
+            return StereoRig(load_camera(self.scope_camera), self.baseline)
         intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
         intr.check("--fov/--size")
         return StereoRig(intr, self.baseline)
@@ -94,7 +103,15 @@ class SceneOptions:
 
 def scene_config(options: SceneOptions) -> SceneConfig | None:
     """The validated scene configuration of ``--scene-config`` (with ``--instrument``'s instrument), or of
-    ``--instrument`` alone; None without either. :class:`UserError` naming the file and the key."""
+    ``--instrument`` alone; None without either. :class:`UserError` naming the file and the key.
+
+    A scope given by file (``--scope-camera``, ``--scope-calib``) is checked here too, so that a bad lens or
+    calibration fails before anything is reconstructed or written."""
+    if options.scope_calib or options.scope_camera:
+        try:
+            options.rig()
+        except OptionError as exc:
+            raise UserError(f"{flag_of(SceneOptions, exc.name)}: {exc.message}") from None
     if options.scene_config:
         try:
             return load_scene_config(options.scene_config, default_instrument=options.instrument)
@@ -109,24 +126,56 @@ def _config_error(config: SceneConfig, exc: ConfigError) -> UserError:
     return UserError(f"{config.path}: {exc}" if config.path is not None else str(exc))
 
 
+def capture_camera(record: dict, options: SceneOptions) -> tuple[StereoRig, np.ndarray]:
+    """The rig and the (left eye's) pose of ``--path capture``: the capture's own camera (CONVENTIONS 1.2).
+
+    For an RGB-D capture, its K and image size (``--baseline`` apart), at the identity (the world frame is the
+    capture's camera frame, the first frame's for fused captures); for a stereo
+    capture, the calibrated pair itself (K, D of each eye, R, T, the image size) at the identity, the
+    calibration's left camera frame being the world frame.
+    """
+    capture = record.get("capture") or {}
+    stereo = capture.get("stereo")
+    try:
+        if stereo is not None:
+            calib = stereo["calibration_values"]
+            width, height = (int(v) for v in calib["image_size"])
+            rig = StereoRig(Camera(Intrinsics.from_K(calib["K_left"], width, height), calib["D_left"]), 0.0,
+                            right=Camera(Intrinsics.from_K(calib["K_right"], width, height), calib["D_right"]),
+                            R=calib["R"], T=calib["T"])
+            return rig, np.eye(4)
+        intrinsics = Intrinsics.from_dict(capture["intrinsics"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise UserError(f"--path capture: the scene's capture record has no camera ({exc!r}); give a capture "
+                        "(--rgb/--depth or --left/--right/--stereo-calib) or a mesh folder made from one") from None
+    if options.baseline <= 0 or options.baseline > 0.1:
+        raise UserError(f"--baseline: {options.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
+    return StereoRig(Camera(intrinsics), options.baseline), np.eye(4)
+
+
 def make_description(vertices: np.ndarray, triangles: np.ndarray, options: SceneOptions, rc=None,
-                     texture: str | None = folder.TEXTURE, config: SceneConfig | None = None) -> SceneDescription:
+                     texture: str | None = folder.TEXTURE, config: SceneConfig | None = None,
+                     capture: tuple[StereoRig, np.ndarray] | None = None) -> SceneDescription:
     """The scene model: rig, path (generated over the mesh or read from a path file), light, and the tissue
     (``mesh.ply`` with ``texture``, or its vertex colours when None) with its deformation (``--deform``'s
     preset, or the configuration's, with the configuration's overrides).
 
     ``rc`` is a ready ``raycast.Raycaster`` of the mesh (built here if not given). The configuration's objects
-    are added by :func:`build_scene_folder` (they write files).
+    are added by :func:`build_scene_folder` (they write files). ``capture`` is the rig and pose of ``--path
+    capture`` (:func:`capture_camera`): the scope holds still there for ``--frames`` frames.
     """
     if options.material not in MATERIALS:
         raise UserError(f"--material: unknown material {options.material!r}; choose one of {', '.join(MATERIALS)}")
     if options.light not in ("spot", "point"):
         raise UserError(f"--light: must be spot or point, got {options.light!r}")
     try:
-        rig = options.rig()
+        rig = options.rig() if capture is None else capture[0]
     except OptionError as exc:
         raise UserError(f"{flag_of(SceneOptions, exc.name)}: {exc.message}") from None
-    if options.path_file:
+    if capture is not None and not options.path_file:
+        path = CameraPath(np.repeat(capture[1][None], max(1, int(options.frames)), axis=0), float(options.fps),
+                          kind=CAPTURE_PATH)
+    elif options.path_file:
         try:
             path: CameraPath = load_path_file(options.path_file)
         except ValueError as exc:  # the message names the file
@@ -178,7 +227,9 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
         config = scene_config(options)
     rc = raycaster(mesh.vertices, mesh.triangles)
     texture = folder.TEXTURE if (out_dir / folder.TEXTURE).is_file() and mesh.uvs is not None else None
-    desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc, texture=texture, config=config)
+    capture = capture_camera(record, options) if options.path == CAPTURE_PATH else None
+    desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc, texture=texture, config=config,
+                            capture=capture)
     coverage = path_coverage(mesh.vertices, mesh.triangles, desc.rig, desc.path, scale=0.5, rc=rc)
     timings = {"path_s": time.perf_counter() - t0}
     objects_record = None

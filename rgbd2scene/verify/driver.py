@@ -30,7 +30,7 @@ def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
                    tolerances: Tolerances | None = None, *, progress: bool = True, frames: Iterable[int] | None = None,
                    normals: str = "smooth", mesh_ids: Iterable[int] | None = None,
                    error_maps: str | Path | None = None, checks: Sequence[Check] = CHECKS,
-                   oracle: SceneOracle | None = None) -> VerifyReport:
+                   oracle: SceneOracle | None = None, blender_frames: int = 0) -> VerifyReport:
     """Check a dataset folder (CONVENTIONS.md section 4) for self-consistency.
 
     Parameters
@@ -52,6 +52,8 @@ def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
     checks : the checks to run (default all registered ones, ``checks.CHECKS``).
     oracle : the scene model to ray cast instead of the scene mesh (a :class:`~rgbd2scene.verify.oracle.SceneOracle`,
         e.g. one that poses moving objects per frame); ``mesh_path``, ``normals`` and ``mesh_ids`` then do not apply.
+    blender_frames : render this many sampled frames' passes with Blender and compare the maps with them (the
+        independent second source of the ground truth, :mod:`rgbd2scene.verify.passes`; needs ``bpy``).
     """
     from tqdm import tqdm
 
@@ -108,6 +110,11 @@ def verify_dataset(dataset_dir: str | Path, mesh_path: str | Path | None = None,
 
     written = write_error_maps(maps_dir, keep, run.tol, dataset.root.name) if keep is not None else []
     notes = [f"moving object ids {sorted(moving)} left out of mesh and flow checks"] if moving else []
+    if blender_frames:
+        from rgbd2scene.verify.passes import blender_crosscheck
+
+        note = blender_crosscheck(run, blender_frames)
+        notes += [note] if note else []
     return VerifyReport(str(dataset.root), width, height, count, oracle.source if oracle is not None else None,
                         run.collector.results(name for check in checks for name in check.names), run.problems,
                         time.perf_counter() - t_start, float(np.mean(frame_times)) if frame_times else float("nan"),

@@ -26,10 +26,10 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from rgbd2scene.conventions import pixel_rays
+from rgbd2scene.camera import Camera
 from rgbd2scene.dataset.layout import FramePaths, frame_paths
 from rgbd2scene.errors import UserError
-from rgbd2scene.groundtruth.schema import SCHEMA, surface_mask
+from rgbd2scene.groundtruth.schema import DISTORTION_LENGTHS, SCHEMA, surface_mask
 
 if TYPE_CHECKING:
     from rgbd2scene.dataset.reader import Dataset
@@ -183,6 +183,16 @@ class VerifyRun:
         return self.dataset.frames - 1
 
     @property
+    def rig(self):
+        """The rig as rendered (dataset.json's ``camera``): both eyes' cameras and R, T."""
+        return self.dataset.rig
+
+    @property
+    def rectified(self) -> bool:
+        """A rectified pair (disparity); otherwise raw (correspondence, CONVENTIONS 1.2)."""
+        return self.rig.rectified
+
+    @property
     def no_pixels_note(self) -> str:
         """Why a declared metric got no value."""
         return "no pixels to compare" + ("; moving objects are left out" if self.moving else "")
@@ -213,20 +223,23 @@ class KeyCheck:
     bad_keys: frozenset[str]
 
 
-def check_keys(gt: dict[str, np.ndarray], height: int, width: int) -> KeyCheck:
-    """Missing keys, wrong dtypes and wrong shapes of a ground-truth dict (``SCHEMA``)."""
+def check_keys(gt: dict[str, np.ndarray], height: int, width: int, rectified: bool = True) -> KeyCheck:
+    """Missing keys, wrong dtypes and wrong shapes of a ground-truth dict (``SCHEMA``); a raw pair
+    (``rectified`` False) has ``correspondence`` in place of ``disparity``."""
     issues, bad = [], set()
     count = None  # object count N, from object_ids
+    swap = {} if rectified else {"disparity": True, "correspondence": False}  # key -> optional
     for key, spec in SCHEMA.items():
         if key not in gt:
-            if not spec.optional:
+            if not swap.get(key, spec.optional):
                 issues.append(f"missing key {key}")
                 bad.add(key)
             continue
         a = gt[key]
         if key == "object_ids" and a.ndim == 1:
             count = a.shape[0]
-        want = spec.expected_shape(height, width, count if count is not None else a.shape[0] if a.ndim else None)
+        d = a.shape[0] if key == "D" and a.ndim == 1 and a.shape[0] in DISTORTION_LENGTHS else None
+        want = spec.expected_shape(height, width, count if count is not None else a.shape[0] if a.ndim else None, d)
         if str(a.dtype) != spec.dtype:
             issues.append(f"{key} is {a.dtype}, not {spec.dtype}")
             if not np.issubdtype(a.dtype, np.number):
@@ -267,7 +280,7 @@ class EyeFrame:
 
     @cached_property
     def key_check(self) -> KeyCheck:
-        return check_keys(self.gt or {}, *self.run.shape)
+        return check_keys(self.gt or {}, *self.run.shape, rectified=self.run.rectified)
 
     @property
     def usable(self) -> bool:
@@ -287,6 +300,13 @@ class EyeFrame:
     @property
     def T_world_cam(self) -> np.ndarray:
         return self.gt["T_world_cam"]
+
+    @cached_property
+    def camera(self) -> Camera:
+        """This eye's camera: the npz's K and D (none: a pinhole) at the dataset's image size."""
+        height, width = self.run.shape
+        D = self.gt.get("D")
+        return Camera.from_K(self.K, width, height, () if D is None else np.asarray(D, dtype=np.float64))
 
     @cached_property
     def depth(self) -> np.ndarray:
@@ -312,8 +332,8 @@ class EyeFrame:
 
     @cached_property
     def rays(self) -> np.ndarray:
-        """Camera-frame rays (unit z) through every pixel centre, with this eye's K."""
-        return pixel_rays(*self.run.shape, self.K)
+        """Camera-frame rays (unit z) through every pixel centre, of this eye's camera (NaN: no ray)."""
+        return self.camera.rays()
 
     # -- the oracle --
     @cached_property
@@ -326,8 +346,7 @@ class EyeFrame:
     @cached_property
     def cast(self) -> RayCast:
         """The oracle's ray cast of this eye at this frame (only for checks that need the oracle)."""
-        height, width = self.run.shape
-        return self.run.oracle.cast(self.index, self.K, self.T_world_cam, width, height)
+        return self.run.oracle.cast(self.index, self.camera, self.T_world_cam)
 
     def moved_points(self, other: int) -> np.ndarray | None:
         """World positions at frame ``other`` of the surface points under each pixel, when the oracle follows
@@ -335,8 +354,7 @@ class EyeFrame:
         follow = getattr(self.run.oracle, "moved_points", None)
         if follow is None:
             return None
-        height, width = self.run.shape
-        return follow(self.index, other, self.K, self.T_world_cam, width, height)
+        return follow(self.index, other, self.camera, self.T_world_cam)
 
     # -- other frames of this eye --
     def pose(self, index: int) -> np.ndarray | None:

@@ -1,9 +1,9 @@
 """The scene oracle: what eye E really sees at frame f, by ray casting the scene model (independent of Blender).
 
 The mesh checks (``depth``, ``normals``, ``segmentation``) never open meshes: they ask the run's oracle for
-a :class:`RayCast` at the eye's K, pose, image size and frame, and compare only the pixels the oracle models
-(:meth:`SceneOracle.covers`). When the dataset's scene folder holds its scene model (``scene.json``), the
-oracle is :class:`ModelOracle`: every part at its pose of frame f, deforming tissue deformed
+a :class:`RayCast` of the eye's camera (K, D, image size) at its pose and frame, and compare only the pixels
+the oracle models (:meth:`SceneOracle.covers`). When the dataset's scene folder holds its scene model
+(``scene.json``), the oracle is :class:`ModelOracle`: every part at its pose of frame f, deforming tissue deformed
 (:class:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry`), instance ids per triangle, every pixel
 covered, and surface points followed into other frames (:meth:`ModelOracle.moved_points`) for the flow and
 occlusion checks of moving surfaces. Otherwise (``--mesh``, or no scene folder) it is one static mesh
@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from rgbd2scene.camera import Camera
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
 from rgbd2scene.groundtruth.raycast import Raycaster
@@ -48,8 +49,8 @@ class SceneOracle(Protocol):
     source: str  # what it casts against (the report's "mesh" line)
     shading: str  # one of SHADINGS
 
-    def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int) -> RayCast:
-        """The scene of ``frame`` seen by a pinhole camera (K (3, 3), T_world_cam (4, 4), image size)."""
+    def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray) -> RayCast:
+        """The scene of ``frame`` seen by ``camera`` at T_world_cam (4, 4), along each pixel's ray."""
         ...
 
     def covers(self, frame: int, segmentation: np.ndarray) -> np.ndarray:
@@ -82,8 +83,8 @@ class StaticMeshOracle:
         self.moving = frozenset(moving)
         self.triangle_ids = None if triangle_ids is None else np.asarray(triangle_ids, np.uint16)
 
-    def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int) -> RayCast:
-        hit = self.raycaster.cast(K, width, height, T_world_cam, normals=self.shading)
+    def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray) -> RayCast:
+        hit = self.raycaster.cast(camera, T_world_cam, normals=self.shading)
         ids = None
         if self.triangle_ids is not None:
             tri = hit["triangle_ids"]
@@ -113,23 +114,22 @@ class ModelOracle:
         self.geometry, self.source, self.shading = geometry, source, shading
         self._last: tuple | None = None
 
-    def _hit(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int) -> dict:
-        key = (int(frame), width, height, np.asarray(K, np.float64).tobytes(), np.asarray(T_world_cam).tobytes())
+    def _hit(self, frame: int, camera: Camera, T_world_cam: np.ndarray) -> dict:
+        key = (int(frame), camera, np.asarray(T_world_cam).tobytes())
         if self._last is None or self._last[0] != key:
-            self._last = (key, self.geometry.cast(frame, K, T_world_cam, width, height, normals=self.shading))
+            self._last = (key, self.geometry.cast(frame, camera, T_world_cam, normals=self.shading))
         return self._last[1]
 
-    def cast(self, frame: int, K: np.ndarray, T_world_cam: np.ndarray, width: int, height: int) -> RayCast:
-        hit = self._hit(frame, K, T_world_cam, width, height)
+    def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray) -> RayCast:
+        hit = self._hit(frame, camera, T_world_cam)
         return RayCast(hit["depth"], hit["normals_cam"], hit.get("face_normals_cam"), hit["instance_ids"])
 
     def covers(self, frame: int, segmentation: np.ndarray) -> np.ndarray:
         return np.ones(segmentation.shape, bool)
 
-    def moved_points(self, frame: int, other: int, K: np.ndarray, T_world_cam: np.ndarray, width: int,
-                     height: int) -> np.ndarray:
+    def moved_points(self, frame: int, other: int, camera: Camera, T_world_cam: np.ndarray) -> np.ndarray:
         """(H, W, 3) world positions at ``other`` of the points this camera sees at ``frame`` (NaN: none)."""
-        hit = self._hit(frame, K, T_world_cam, width, height)
+        hit = self._hit(frame, camera, T_world_cam)
         return self.geometry.moved_points(hit["triangle_ids"], hit["uvs"], other)
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.conventions import in_image, invert_pose, project, transform_points
+from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.reconstruct.mesh import Mesh
 from rgbd2scene.scene.paths.track import CameraPath, Track
 from rgbd2scene.scene.paths.waypoints import load_path_file, pose_matrix, waypoint_path
@@ -157,15 +157,14 @@ def frames_in_view(vertices: np.ndarray, poses: np.ndarray, rig: StereoRig, path
     v = np.asarray(vertices, dtype=np.float64)
     if len(v) > VIEW_CHECK_VERTICES:
         v = v[np.random.default_rng(0).choice(len(v), VIEW_CHECK_VERTICES, replace=False)]
-    intr = rig.intrinsics
     out = np.zeros(path.frames, bool)
     for f in range(path.frames):
         world = transform_points(poses[min(f, len(poses) - 1)], v)
         left = np.asarray(path.T_world_cam[f], dtype=np.float64)
-        for T in (left, rig.right_pose(left)):
+        for T, camera in ((left, rig.left), (rig.right_pose(left), rig.right)):
             p = transform_points(invert_pose(T), world)
-            u, w = project(p, intr.K)
+            u, w = camera.project(p)
             with np.errstate(invalid="ignore"):
-                ok = (p[:, 2] >= rig.clip_start) & (p[:, 2] <= rig.clip_end) & in_image(u, w, intr.width, intr.height)
+                ok = (p[:, 2] >= rig.clip_start) & (p[:, 2] <= rig.clip_end) & camera.in_image(u, w)
             out[f] |= bool(ok.any())
     return out

@@ -34,7 +34,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rgbd2scene.conventions import invert_pose, project, transform_points
+from rgbd2scene.camera import Camera
+from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.scene.objects.instrument import Instrument
 from rgbd2scene.scene.paths.track import CameraPath
 from rgbd2scene.scene.paths.waypoints import interpolate_keys
@@ -137,10 +138,11 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def _pixel_rays_world(path: CameraPath, K: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pixel_rays_world(path: CameraPath, camera: Camera, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Origins (F, 3) and world directions (F, 3) with unit camera z of the left eye's rays through ``uv``."""
     T = np.asarray(path.T_world_cam, dtype=np.float64)
-    rays = np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1], np.ones(len(uv))])
+    x, y = camera.undistort(uv[:, 0], uv[:, 1])
+    rays = np.column_stack([x, y, np.ones(len(uv))])
     return T[:, :3, 3], np.einsum("fij,fj->fi", T[:, :3, :3], rays)
 
 
@@ -236,14 +238,13 @@ def clearance_along_parts(rc, poses: np.ndarray, jaw_angle: np.ndarray, trocar: 
 
 def tip_in_view(rc, rig: StereoRig, path: CameraPath, tips: np.ndarray) -> np.ndarray:
     """(F,) bool: the tip projects inside both images, in front of the near clip, unhidden by the tissue."""
-    intr = rig.intrinsics
     out = np.ones(len(tips), bool)
     for f, tip in enumerate(tips):
         left = np.asarray(path.T_world_cam[f], dtype=np.float64)
-        for T in (left, rig.right_pose(left)):
+        for T, camera in ((left, rig.left), (rig.right_pose(left), rig.right)):
             p = transform_points(invert_pose(T), tip)
-            u, v = project(p, intr.K)
-            inside = (p[2] > rig.clip_start and -0.5 <= u < intr.width - 0.5 and -0.5 <= v < intr.height - 0.5)
+            u, v = camera.project(p)
+            inside = p[2] > rig.clip_start and bool(camera.in_image(u, v))
             hit = rc.cast_rays(T[:3, 3], tip - T[:3, 3])["t"]  # in units of the eye-to-tip distance
             out[f] &= bool(inside) and not (np.isfinite(hit) and hit < 1.0 - 1e-6)
     return out
@@ -268,17 +269,16 @@ def _entry_offsets(rig: StereoRig, path: CameraPath, tips: np.ndarray, axes: np.
     out = np.zeros(len(tips))
     if entry_frames <= 0:
         return out
-    intr = rig.intrinsics
     left = np.asarray(path.T_world_cam[0], dtype=np.float64)
     reach = float(np.linalg.norm(tips[0] - trocar))
     start = reach
     for d in np.arange(0.0, reach, 0.001):
         p = tips[0] - d * axes[0]
         seen = False
-        for T in (left, rig.right_pose(left)):
+        for T, camera in ((left, rig.left), (rig.right_pose(left), rig.right)):
             q = transform_points(invert_pose(T), p)
-            u, v = project(q, intr.K)
-            seen |= bool(q[2] > 0 and -0.5 <= u < intr.width - 0.5 and -0.5 <= v < intr.height - 0.5)
+            u, v = camera.project(q)
+            seen |= bool(q[2] > 0 and camera.in_image(u, v))
         if not seen:
             start = min(d + float(instrument.tip[2]), reach)  # the jaws and the wrist out of view too
             break
@@ -328,7 +328,7 @@ def default_motion(rc, rig: StereoRig, path: CameraPath, instrument: Instrument,
         away = -TARGET_SHIFT * np.array([np.cos(azimuth), np.sin(azimuth)])
         uv = target_pixels(np.random.default_rng(keys_seed), frames,
                            fps, intr.width, intr.height, options.view_margin, options.drift_period_s, away)
-        origins, directions = _pixel_rays_world(path, intr.K, uv)
+        origins, directions = _pixel_rays_world(path, rig.left, uv)
         planned = _planned_depths(rc, origins, directions, options.hover)
         lift = np.zeros(frames)
         for _ in range(60):

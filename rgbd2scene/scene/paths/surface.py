@@ -69,14 +69,17 @@ class Surface:
 
 def view_height(rig: StereoRig, depth: float) -> float:
     """Height (m) of the view at ``depth`` along the optical axis."""
-    return depth * rig.intrinsics.height / rig.intrinsics.fy
+    if rig.left.is_pinhole:
+        return depth * rig.intrinsics.height / rig.intrinsics.fy
+    _, _, y0, y1 = rig.left.normalised_bounds(0.0)  # the lens's own view: every pixel's ray
+    return depth * (y1 - y0)
 
 
 def footprint_half(rig: StereoRig, depth: float, tilt_rad: float) -> tuple[float, float]:
     """Half extents (x, y) on a plane at ``depth`` of both eyes' views, tilted by up to ``tilt_rad``."""
-    intr = rig.intrinsics
-    ax = np.arctan(max(intr.cx + 0.5, intr.width - 0.5 - intr.cx) / intr.fx)
-    ay = np.arctan(max(intr.cy + 0.5, intr.height - 0.5 - intr.cy) / intr.fy)
+    bounds = [camera.normalised_bounds(0.0) for camera in (rig.left, rig.right)]  # every pixel's ray, any lens
+    ax = np.arctan(max(max(-x0, x1) for x0, x1, _, _ in bounds))
+    ay = np.arctan(max(max(-y0, y1) for _, _, y0, y1 in bounds))
     hx = depth * np.sin(ax) / np.cos(min(ax + tilt_rad, np.radians(85.0))) + rig.baseline
     hy = depth * np.sin(ay) / np.cos(min(ay + tilt_rad, np.radians(85.0)))
     return float(hx), float(hy)
@@ -124,14 +127,13 @@ def path_coverage(vertices, triangles, rig: StereoRig, path: CameraPath, scale: 
     from rgbd2scene.groundtruth.raycast import raycaster
 
     rc = rc if rc is not None else raycaster(vertices, triangles)
-    intr = rig.intrinsics
     if scale != 1.0:
-        intr = intr.resized(max(2, int(round(intr.width * scale))), max(2, int(round(intr.height * scale))))
-    K = intr.K
+        intr = rig.intrinsics
+        rig = rig.resized(max(2, int(round(intr.width * scale))), max(2, int(round(intr.height * scale))))
     out = np.zeros((path.frames, 2))
     for f, T in enumerate(path.T_world_cam):
         for eye, pose in enumerate((T, rig.right_pose(T))):
-            depth = rc.cast(K, intr.width, intr.height, pose, normals="none")["depth"]
+            depth = rc.cast(rig.camera(("left", "right")[eye]), pose, normals="none")["depth"]
             with np.errstate(invalid="ignore"):
                 ok = (depth >= rig.clip_start) & (depth <= rig.clip_end)
             out[f, eye] = ok.mean()

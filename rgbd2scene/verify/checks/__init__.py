@@ -6,6 +6,7 @@ see ``verify/framework.py``), then add one line to :data:`CHECKS` below. Its row
 those of the checks listed before it.
 """
 
+from rgbd2scene.verify.checks.correspondence import CorrespondenceCheck
 from rgbd2scene.verify.checks.coverage import CoverageCheck
 from rgbd2scene.verify.checks.depth import DepthCheck
 from rgbd2scene.verify.checks.disparity import DisparityCheck
@@ -25,6 +26,7 @@ CHECKS = (
     DisparityCheck(),
     FlowCheck(),
     StereoCheck(),
+    CorrespondenceCheck(),
     OcclusionCheck(),
 )
 

@@ -16,6 +16,8 @@ class DisparityCheck(Check):
     maps = ("disparity",)
 
     def declare(self, run: VerifyRun) -> None:
+        if not run.rectified:  # a raw pair has correspondence instead
+            return
         for eye in EYES:
             run.collector.metric("disparity", eye, METRIC, run.tol.disparity_rel, note=run.no_pixels_note)
 

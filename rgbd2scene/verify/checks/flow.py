@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd2scene.conventions import flow_between_cameras, invert_pose, pixel_grid, project, transform_points
+from rgbd2scene.conventions import invert_pose, pixel_grid, transform_points
 from rgbd2scene.dataset.layout import EYES
 from rgbd2scene.verify.error_maps import ErrorPanel, pixel_states, ratio, worst
 from rgbd2scene.verify.framework import Check, EyeFrame, VerifyRun, median_p99
@@ -72,13 +72,11 @@ def _compare(frame: EyeFrame, d: Direction, flow: np.ndarray, other: int,
     tol = frame.run.tol
     surface = frame.surface
     moved = frame.moved_points(other)
-    if moved is not None:
-        u, v = project(transform_points(invert_pose(T_other), moved), frame.K)
-        gu, gv = pixel_grid(*frame.run.shape)
-        ref = np.stack([u - gu, v - gv], axis=-1)
-    else:
-        ref = flow_between_cameras(np.where(surface, frame.depth, np.nan), frame.K, frame.T_world_cam,
-                                   T_other).astype(np.float64)
+    if moved is None:  # the static scene: the surface point stays where the camera saw it
+        moved = transform_points(frame.T_world_cam, frame.camera.backproject(np.where(surface, frame.depth, np.nan)))
+    u, v = frame.camera.project(transform_points(invert_pose(T_other), moved))
+    gu, gv = pixel_grid(*frame.run.shape)
+    ref = np.stack([u - gu, v - gv], axis=-1)
     ref_ok = np.all(np.isfinite(ref), axis=-1) & surface & frame.static
     have = np.all(np.isfinite(flow), axis=-1)
     both = ref_ok & have

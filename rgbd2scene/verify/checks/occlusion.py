@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.conventions import backproject, in_image, invert_pose, project, transform_points
+from rgbd2scene.camera import Camera
+from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.verify.framework import Check, EyeFrame
 
 #: flag map -> step to the other frame
@@ -32,10 +33,11 @@ class OcclusionCheck(Check):
                 continue
             moved = frame.moved_points(other)
             if moved is None:  # the static scene moved with the camera
-                moved = transform_points(frame.T_world_cam, backproject(np.where(frame.surface, frame.depth, np.nan),
-                                                                        frame.K))
+                moved = transform_points(frame.T_world_cam,
+                                         frame.camera.backproject(np.where(frame.surface, frame.depth, np.nan)))
             moved = np.where(frame.surface[..., None], moved, np.nan)
-            visible, hidden = occlusion_reference(moved, frame.K, T_other, depth_other, frame.run.tol.occlusion_rel)
+            visible, hidden = occlusion_reference(moved, frame.camera, T_other, depth_other,
+                                                  frame.run.tol.occlusion_rel)
             flags = flags.astype(bool)
             wrong = ((flags & visible) | (~flags & hidden)) & frame.static
             if frame.surface.any():
@@ -43,7 +45,7 @@ class OcclusionCheck(Check):
                           frame.run.tol.occlusion_disagree)
 
 
-def occlusion_reference(points: np.ndarray, K: np.ndarray, T_b: np.ndarray, depth_b: np.ndarray,
+def occlusion_reference(points: np.ndarray, camera: Camera, T_b: np.ndarray, depth_b: np.ndarray,
                         rel: float) -> tuple[np.ndarray, np.ndarray]:
     """Pixels whose surface point (at its position in frame b) is clearly visible / clearly hidden (or
     outside) in camera b.
@@ -51,7 +53,7 @@ def occlusion_reference(points: np.ndarray, K: np.ndarray, T_b: np.ndarray, dept
     Parameters
     ----------
     points : (H, W, 3) world positions in frame b of the points under each pixel, NaN where no surface.
-    K : (3, 3) intrinsics; T_b : (4, 4) camera b's T_world_cam.
+    camera : the eye's camera; T_b : (4, 4) camera b's T_world_cam.
     depth_b : (H, W) planar depth of camera b.
     rel : relative depth difference that separates visible from hidden.
 
@@ -63,8 +65,8 @@ def occlusion_reference(points: np.ndarray, K: np.ndarray, T_b: np.ndarray, dept
     surface = np.all(np.isfinite(points), axis=-1)
     pts = transform_points(invert_pose(T_b), points)
     z = pts[..., 2]
-    u, v = project(pts, K)
-    outside = surface & ~in_image(u, v, w, h)
+    u, v = camera.project(pts)
+    outside = surface & ~camera.in_image(u, v)
     inside = surface & ~outside
     u0 = np.clip(np.floor(np.nan_to_num(u)), 0, w - 2).astype(np.int64) if w > 1 else np.zeros((h, w), int)
     v0 = np.clip(np.floor(np.nan_to_num(v)), 0, h - 2).astype(np.int64) if h > 1 else np.zeros((h, w), int)

@@ -3,8 +3,9 @@
 Per eye and frame: the RGB PNG is 8-bit RGB of the dataset's size; the npz has every key of the schema with
 its dtype and shape; NaN (never a sentinel) where there is no surface, in every map that has NaN there;
 flow NaN on the last (forward) / first (backward) frame; segmentation non-zero exactly on surface; unit
-normals facing the camera; positive disparity; K as in dataset.json; T_world_cam rigid. Per frame: both eyes
-share K and the right eye is the left eye moved by the baseline along its x axis.
+normals facing the camera; positive disparity; K and D as in dataset.json; T_world_cam rigid. Per frame: the
+right eye is where the rig puts it (a rectified pair: the left eye moved by the baseline along its x axis,
+both sharing K; a raw pair: the inverse of [R | T]).
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ MAX_ISSUES = 8
 NAN_MAPS = tuple(k for k, f in SCHEMA.items() if f.nan_where_no_surface and k != "depth")
 #: The flow maps and the frame (relative to the last) on which each must be all NaN.
 FLOW_BOUNDARY = {"flow_forward": "last", "flow_backward": "first"}
+#: Maps that may be NaN on surface pixels too (CONVENTIONS 1.2: where the other eye does not see the point).
+MAY_MISS_ON_SURFACE = ("correspondence",)
 
 
 class SchemaCheck(Check):
@@ -42,14 +45,14 @@ class SchemaCheck(Check):
             frame.problem(text)
 
     def check_pair(self, pair: PairFrame) -> None:
-        tol = pair.run.tol
-        expect = np.eye(4)
-        expect[0, 3] = pair.run.baseline
+        tol, rig = pair.run.tol, pair.run.rig
+        expect = rig.T_left_right  # the baseline along x for a rectified pair; [R | T] inverted for a raw one
         T_left_right = invert_pose(pair.left.T_world_cam) @ pair.right.T_world_cam
-        pair.add("schema", "both", "right pose vs left + baseline (max abs)",
+        pair.add("schema", "both", "right pose vs left + rig (max abs)",
                  float(np.max(np.abs(T_left_right - expect))), tol.pose_m)
-        pair.add("schema", "both", "K left vs right (max abs)", float(np.max(np.abs(pair.left.K - pair.right.K))),
-                 tol.K_abs)
+        if pair.run.rectified:
+            pair.add("schema", "both", "K left vs right (max abs)",
+                     float(np.max(np.abs(pair.left.K - pair.right.K))), tol.K_abs)
 
 
 def _check_rgb(frame: EyeFrame) -> None:
@@ -91,13 +94,15 @@ def _check_values(frame: EyeFrame) -> list[str]:
         n_inf = int(np.isinf(a).sum())
         if n_inf:
             issues.append(f"{key} has {n_inf} infinite values")
-        if key in FLOW_BOUNDARY:
-            boundary = FLOW_BOUNDARY[key]
-            if frame.index == (last if boundary == "last" else 0):
+        if key in FLOW_BOUNDARY or key in MAY_MISS_ON_SURFACE:
+            boundary = FLOW_BOUNDARY.get(key)
+            if boundary and frame.index == (last if boundary == "last" else 0):
                 if fin.any():
                     issues.append(f"{key} must be NaN on the {boundary} frame ({int(fin.sum())} finite pixels)")
                 continue
-            stray = fin & ~surface  # flow may be missing on surface (reported by the flow check)
+            # flow may be missing on surface (reported by the flow check), correspondence where the other
+            # eye does not see the point (the correspondence check)
+            stray = fin & ~surface
             mismatch.append(stray.mean())
             if stray.any():
                 issues.append(f"{key} has values on {int(stray.sum())} pixels without surface")
@@ -123,7 +128,13 @@ def _check_values(frame: EyeFrame) -> list[str]:
             issues.append(f"segmentation: nonzero ids differ from the depth's surface on {int(bad.sum())} px")
     frame.add("schema", "NaN/id mask mismatch (frac)", max(mismatch) if mismatch else 0.0, 0.0)
     frame.add("schema", "sentinel values (count)", float(sentinels), 0.0)
-    frame.add("schema", "K vs dataset.json (max abs)", float(np.max(np.abs(frame.K - frame.run.K))), tol.K_abs)
+    camera = frame.run.rig.camera(frame.eye)
+    frame.add("schema", "K vs dataset.json (max abs)", float(np.max(np.abs(frame.K - camera.K))), tol.K_abs)
+    D = gt.get("D")
+    if D is not None and D.ndim == 1:
+        want = camera.distortion
+        off = float(np.max(np.abs(D - want))) if D.shape == want.shape else float("inf")
+        frame.add("schema", "D vs dataset.json (max abs)", off, tol.K_abs)
     T = frame.T_world_cam
     R = T[:3, :3]
     rigid = float(max(np.max(np.abs(R.T @ R - np.eye(3))), abs(np.linalg.det(R) - 1),

@@ -39,7 +39,12 @@ class StereoCheck(Check):
     names = ("stereo",)
     maps = ("depth",)
 
+    def applies_to(self, frame) -> bool:
+        return frame.run.rectified and super().applies_to(frame)  # a raw pair: the correspondence check
+
     def declare(self, run: VerifyRun) -> None:
+        if not run.rectified:
+            return
         for label in PAIRS:
             run.collector.metric("stereo", label, "other eye sees further (frac)", run.tol.lr_inconsistent,
                                  note=run.no_pixels_note)
