@@ -5,6 +5,7 @@ import pytest
 
 from rgbd2scene.capture.camera import PRESETS, Intrinsics, load_camera_json, preset
 from rgbd2scene.errors import UserError
+from rgbd2scene.options import OptionError
 
 
 def test_plain_and_open3d_json_forms_agree(tmp_path):
@@ -23,8 +24,9 @@ def test_plain_and_open3d_json_forms_agree(tmp_path):
 def test_presets():
     assert preset("primesense") == Intrinsics(640, 480, 525, 525, 319.5, 239.5)
     assert {"tum_fr1", "tum_fr2", "tum_fr3"} <= set(PRESETS)
-    with pytest.raises(UserError, match="unknown camera preset"):
+    with pytest.raises(OptionError, match="unknown camera preset") as info:
         preset("nope")
+    assert info.value.name == "preset"  # the CLI spells it --preset, a batch configuration preset
 
 
 @pytest.mark.parametrize(
