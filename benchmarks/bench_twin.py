@@ -14,13 +14,8 @@ only the part of the view where stereo matching found confident depth). The samp
 The twin:
 
 1. ``rgbd2scene scene --left L --right R --stereo-calib HAMLYN --path capture`` (the scope is the calibrated
-   pair at the capture's own pose, CONVENTIONS 1.2), when this checkout's ``scene`` offers ``--path capture``;
-   otherwise the closest path available (said in the printout): a one-frame path file holding the capture's
-   left camera pose (the identity: the world frame is the calibration's left camera frame), the left eye's
-   intrinsics at 360x288 as ``--scope-camera`` and the calibration's baseline |T|: a rectified pair sharing the
-   left K, so the left render re-creates the left view and the right one differs from the real right eye by
-   its K (cx 191 against 166) and a 0.06 degree rotation.
-2. ``rgbd2scene render`` with the defaults, at the capture's own size (360x288: a few seconds).
+   pair at the capture's own pose, CONVENTIONS 1.2).
+2. ``rgbd2scene render --frames 1`` with the defaults, at the capture's own size (360x288).
 3. ``rgbd2scene realism`` of frame 0 against the real pair. A rectified dataset's pair is matched as rendered and
    the real pair after rectification with its calibration (``--real-calib``); a raw dataset and the real pair
    are both rectified with the dataset's ``calibration.yaml``.
@@ -35,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import re
 import shutil
 import subprocess
 import sys
@@ -47,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rgbd2scene.files.atomic import write_json, write_text  # noqa: E402
+from rgbd2scene.files.atomic import write_text  # noqa: E402
 from rgbd2scene.files.images import write_image  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
@@ -68,24 +62,6 @@ def _cli(*args: str) -> str:
     return proc.stdout
 
 
-def has_capture_path() -> bool:
-    """Whether this checkout's ``scene`` takes ``--path capture`` (read from its help: ``--path {static,...}``)."""
-    found = re.search(r"--path \{([^}]*)\}", _cli("scene", "--help"))
-    return bool(found) and "capture" in found.group(1).split(",")
-
-
-def fallback_files(folder: Path) -> list[str]:
-    """Scene options of the fallback twin: the capture's left pose, left K and baseline (module docstring)."""
-    K = np.loadtxt(HAMLYN / "calib.left.intrinsic.txt")
-    baseline_m = float(np.linalg.norm(np.loadtxt(HAMLYN / "calib.l2r.4x4")[:3, 3])) / 1000.0
-    camera, path = folder / "scope_camera.json", folder / "capture_pose.json"
-    write_json(camera, {"width": SIZE[0], "height": SIZE[1], "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2],
-                        "cy": K[1, 2]})
-    write_json(path, {"fps": 30, "frames": 1, "comment": "the capture's left camera: the world frame itself",
-                      "waypoints": [{"T_world_cam": np.eye(4).tolist(), "frame": 0}]})
-    return ["--path-file", str(path), "--scope-camera", str(camera), "--baseline", f"{baseline_m:.7f}"]
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="markdown report (default benchmarks/results/twin.md; '' to skip)")
@@ -98,22 +74,18 @@ def main(argv: list[str] | None = None) -> int:
     if WORK.exists():
         shutil.rmtree(WORK)
     WORK.mkdir(parents=True)
-    capture = has_capture_path()
-    path_options = ["--path", "capture"] if capture else fallback_files(WORK)
-    how = ("--path capture" if capture else "FALLBACK (this checkout has no --path capture): a one-frame path file at "
-           "the capture's left camera pose, --scope-camera with the left K at 360x288, --baseline |T|")
     versions = software_versions()
-    print(f"twin path: {how}", flush=True)
-    print(f"settings: size {SIZE[0]}x{SIZE[1]}, render defaults, python {versions['python']}, bpy {versions['bpy']}, "
+    print(f"settings: --path capture, frame 0, size {SIZE[0]}x{SIZE[1]}, render defaults, "
+          f"python {versions['python']}, bpy {versions['bpy']}, "
           f"machine {platform.machine()}", flush=True)
 
     scene, dataset, out = WORK / "scene", WORK / "dataset", WORK / "realism"
     t = time.perf_counter()
-    _cli("scene", "--left", str(LEFT), "--right", str(RIGHT), "--stereo-calib", str(HAMLYN), *path_options,
+    _cli("scene", "--left", str(LEFT), "--right", str(RIGHT), "--stereo-calib", str(HAMLYN), "--path", "capture",
          "--no-overview", "-o", str(scene))
     t_scene = time.perf_counter() - t
     t = time.perf_counter()
-    _cli("render", str(scene), "-o", str(dataset), "--quiet", "--no-sheet")
+    _cli("render", str(scene), "-o", str(dataset), "--frames", "1", "--quiet", "--no-sheet")
     t_render = time.perf_counter() - t
     meta = json.loads((dataset / "dataset.json").read_text())
     raw = (meta.get("camera") or {}).get("rectified") is False
@@ -147,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
         print(line, flush=True)
     if out_md:
         parts = ["# Digital twin of the Hamlyn frame (`benchmarks/bench_twin.py`)", "",
-                 f"Twin path: {how}. Render defaults at {SIZE[0]}x{SIZE[1]}; measured pixels: the valid area where "
+                 "Twin path: --path capture, frame 0. "
+                 f"Render defaults at {SIZE[0]}x{SIZE[1]}; measured pixels: the valid area where "
                  "the rendered eye sees the surface (method: the script's docstring). Goal bands (issue 15): "
                  "image figures 0.8-1.25, stereo difficulty 0.85-1.2. The right eye is held out (the detail "
                  "defaults were tuned on the left frame).", "", table, "", *[f"- {line}" for line in lines], "",

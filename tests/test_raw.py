@@ -24,6 +24,7 @@ from rgbd2scene.errors import UserError
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig, read_scope_calibration
+from rgbd2scene.sensor import SensorOptions
 
 pytest.importorskip("bpy")
 
@@ -78,7 +79,8 @@ def scene(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def raw(scene, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("raw_ds") / "ds"
-    render_dataset(scene, out, samples=1, denoise="none", progress=False)
+    # the ideal sensor (fixed exposure, no noise, no vignetting): the images are compared with the texture
+    render_dataset(scene, out, samples=1, denoise="none", sensor=SensorOptions.ideal(), progress=False)
     return out
 
 
@@ -268,3 +270,15 @@ def test_a_raw_bag_has_each_eyes_real_distortion(raw, tmp_path):
         np.testing.assert_allclose(np.reshape(info.k, (3, 3)), K)
         np.testing.assert_allclose(np.reshape(info.r, (3, 3)), Rr, atol=1e-12)
         np.testing.assert_allclose(np.reshape(info.p, (3, 4)), P, atol=1e-9)
+
+
+def test_the_contact_sheet_of_a_raw_pair_shows_its_correspondence(raw):
+    """A raw dataset has no disparity: its contact sheet shows the correspondence to the right eye instead."""
+    from rgbd2scene.pictures.contact_sheet import colorize_flow, frame_panels
+
+    panels = {p.key: p for p in frame_panels(raw, 1)}
+    assert "disparity" not in panels and "correspondence" in panels
+    _, gt = ds.read_frame(raw, "left", 1, rgb=False)
+    np.testing.assert_array_equal(panels["correspondence"].image, colorize_flow(gt["correspondence"]))
+    finite = np.isfinite(gt["correspondence"]).all(axis=-1)
+    assert finite.mean() > 0.5 and np.all(gt["correspondence"][finite][:, 0] < 0)  # the right eye sees it further left

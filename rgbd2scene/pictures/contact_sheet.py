@@ -92,8 +92,8 @@ class Panel(NamedTuple):
 
 def frame_panels(root: str | Path, frame: int) -> list[Panel]:
     """The pictures of ``frame``: left/right RGB, then the left eye's maps present in its npz: depth,
-    disparity, normals, both flows, the instance and class masks with their legends, the flow of moving
-    objects and the occlusion flags."""
+    disparity (or, for a raw pair, the correspondence to the right eye), normals, both flows, the instance and
+    class masks with their legends, the flow of moving objects and the occlusion flags."""
     panels = []
     for eye in ds.EYES:
         rgb, _ = ds.read_frame(root, eye, frame, rgb=True)
@@ -107,6 +107,10 @@ def frame_panels(root: str | Path, frame: int) -> list[Panel]:
     if "disparity" in gt:
         lo, hi = depth_range(gt["disparity"])
         panels.append(Panel("disparity", colorize_depth(gt["disparity"], lo, hi), f"disparity {lo:.1f}-{hi:.1f} px"))
+    if "correspondence" in gt and np.isfinite(gt["correspondence"]).any():  # a raw pair: to the right eye's pixel
+        mag = np.hypot(gt["correspondence"][..., 0], gt["correspondence"][..., 1])
+        panels.append(Panel("correspondence", colorize_flow(gt["correspondence"]),
+                            f"correspondence to right max {np.nanmax(mag):.1f} px"))
     if "normals" in gt:
         panels.append(Panel("normals", colorize_normals(gt["normals"]), "normals (camera frame)"))
     for key in ("flow_forward", "flow_backward"):
