@@ -45,19 +45,29 @@ elas:
 test: install
 	$(BIN)/python -m pytest -q tests
 
-# The main job on the bundled sample: capture -> scene -> stereo dataset -> verified ground truth.
+# The main job on the bundled sample: capture -> scene (instrument, breathing tissue, a stereo scope with real optics:
+# distortion, unequal eyes) -> the raw stereo dataset with auto exposure and sensor noise -> verified ground truth;
+# then the capture's digital twin (the scope at the capture's own camera) compared with the captured image.
+SAMPLE := data_samples/tissue
+CAPTURE := --rgb $(SAMPLE)/rgb.png --depth $(SAMPLE)/depth.png --camera $(SAMPLE)/camera.json
 demo: install
-	$(BIN)/rgbd2scene scene --rgb data_samples/tissue/rgb.png --depth data_samples/tissue/depth.png \
-	  --camera data_samples/tissue/camera.json --path scan --frames 30 -o $(DEMO_OUT)/scene
+	$(BIN)/rgbd2scene scene $(CAPTURE) --instrument --deform breathing \
+	  --scope-calib data_samples/scope/calibration.yaml --path scan --frames 30 -o $(DEMO_OUT)/scene
 	$(BIN)/rgbd2scene render $(DEMO_OUT)/scene -o $(DEMO_OUT)/dataset --frames 12
 	$(BIN)/rgbd2scene verify $(DEMO_OUT)/dataset --quiet --json $(DEMO_OUT)/verify.json \
 	  --error-maps $(DEMO_OUT)/error_maps
+	$(BIN)/rgbd2scene scene $(CAPTURE) --path capture --no-overview -o $(DEMO_OUT)/twin_scene
+	$(BIN)/rgbd2scene render $(DEMO_OUT)/twin_scene -o $(DEMO_OUT)/twin --frames 1 --quiet
+	$(BIN)/rgbd2scene realism $(DEMO_OUT)/twin --real $(SAMPLE)/rgb.png --surface-only --methods none
 	$(BIN)/rgbd2scene preview $(DEMO_OUT)/scene --screenshot $(DEMO_OUT)/preview.png
 	@echo
 	@echo "demo results in $(DEMO_OUT)/:"
 	@echo "  scene/    scene.blend (open in Blender), mesh.ply, mesh.obj, overview.png, scene.json"
-	@echo "  dataset/  left|right/rgb/*.png, left|right/gt/*.npz, dataset.json, contact_sheet.png"
+	@echo "  dataset/  left|right/rgb/*.png (raw, distorted, auto-exposed), left|right/gt/*.npz, sensor/*.json,"
+	@echo "            calibration.yaml, dataset.json, contact_sheet.png"
 	@echo "  verify.json and error_maps/ (ground-truth checks), preview.png (Open3D screenshot of the mesh)"
+	@echo "  twin/realism/realism.png (the capture's digital twin beside the captured image: real, render,"
+	@echo "            difference, spectra) and realism.md"
 
 bench: install
 	$(BIN)/python benchmarks/run_all.py

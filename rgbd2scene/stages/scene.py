@@ -43,6 +43,9 @@ from rgbd2scene.stages.render import parse_size
 #: raises the gain farther (measured: benchmarks/bench_sensor.py). The 0.05 W before left a twin at 8 cm at
 #: 0.30 of the real frame's brightness.
 DEFAULT_LIGHT_W = 0.35
+#: The working distance DEFAULT_LIGHT_W was chosen for (metres): beyond it the light grows with the square of
+#: the distance (``SceneOptions.light_for_distance``), as a light source is chosen for its working distance.
+LIGHT_REFERENCE_DISTANCE_M = 0.08
 #: How far outside each lens a fibre outlet ends (two-outlet light), metres.
 OUTLET_MARGIN_M = 0.0015
 
@@ -79,6 +82,9 @@ class SceneOptions:
                                 "(evaluated per sample: slower) or off", choices=("on", "procedural", "off"))
     light: str = option("spot", "light at the tip", choices=("spot", "point"))
     light_power_w: float = option(DEFAULT_LIGHT_W, "light power, watts (all outlets together)", flag="--light-power")
+    light_for_distance: bool = option(True, "keep the light's power for a working distance beyond 8 cm: raise it "
+                                      "with the square of the distance to the surface the path looks at (the twin "
+                                      "of a capture taken from afar then needs no extreme gain)")
     light_outlets: int = option(2, "fibre outlets at the tip: 1 (between the eyes) or 2 (beside the lenses, "
                                 "like a stereo scope's light guides)", choices=(1, 2))
     deform: str = option("none", "tissue motion: breathing, heartbeat (periodic displacement along the surface "
@@ -187,7 +193,11 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         except ValueError as exc:
             raise UserError(f"path: {exc}") from None
     # centred between the eyes; two outlets sit OUTLET_MARGIN_M outside the lenses
-    light = Light(kind=options.light, power_w=options.light_power_w, offset=(rig.baseline / 2, 0.0, 0.0),
+    power = float(options.light_power_w)
+    if options.light_for_distance:
+        distance = _working_distance(rc if rc is not None else raycaster(vertices, triangles), path)
+        power *= max(1.0, distance / LIGHT_REFERENCE_DISTANCE_M) ** 2
+    light = Light(kind=options.light, power_w=power, offset=(rig.baseline / 2, 0.0, 0.0),
                   outlets=options.light_outlets, outlet_spacing=rig.baseline + 2 * OUTLET_MARGIN_M)
     # only the wet-tissue material has the micro-structure: record what is built
     detail = TissueDetail(enabled=options.tissue_detail != "off" and options.material == "wet_tissue",
@@ -202,6 +212,13 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         except ConfigError as exc:
             raise _config_error(config, exc) from None
     return SceneDescription(rig, path, light, [tissue], environment=dict(config.environment))
+
+
+def _working_distance(rc, path: CameraPath) -> float:
+    """Median planar depth of the surface on the optical axis over the path's frames (0 when it sees none)."""
+    depth = np.atleast_1d(rc.centre_depth(path.T_world_cam))
+    depth = depth[np.isfinite(depth)]
+    return float(np.median(depth)) if depth.size else 0.0
 
 
 def _view_target(rc, path: CameraPath) -> np.ndarray:
