@@ -61,7 +61,7 @@ def captures(tmp_path_factory) -> Path:
         _write_capture(root / "second", cv2.imread(str(TUM / "TUM_color.png")),
                        cv2.imread(str(TUM / "TUM_depth.png"), cv2.IMREAD_UNCHANGED), tum_intr, 5000.0)
     else:
-        from rgbd2scene.capture.camera import Intrinsics
+        from rgbd2scene.geometry.camera import Intrinsics
 
         crop = Intrinsics(480, 360, intr.fx, intr.fy, intr.cx - 160, intr.cy - 120)
         _write_capture(root / "second", rgb[120:, 160:], depth[120:, 160:], crop, scale)

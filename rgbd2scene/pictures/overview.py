@@ -18,7 +18,7 @@ import numpy as np
 from rgbd2scene.conventions import rotate
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.images import rgb_to_bgr, write_image
-from rgbd2scene.reconstruct.mesh import vertex_normals
+from rgbd2scene.geometry.mesh import vertex_normals
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 BACKGROUND = (28, 28, 28)  # RGB
