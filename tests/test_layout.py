@@ -111,3 +111,19 @@ def test_geometry_imports_only_the_conventions():
     """The shared geometry (camera model, mesh, ray caster) sits below every stage: it may use the conventions
     and the errors, nothing else of the package."""
     assert set(_package_imports()["geometry"]) <= {"conventions", "errors"}
+
+
+def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
+    """``rgbd2scene mesh`` imports the capture and mesh stages only (the scene, render and Blender stages cost
+    a few tenths of a second at every start); ``rgbd2scene.stages.X`` still gives every documented name."""
+    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
+            "cli.build_parser('mesh')\n"
+            "loaded = sorted(m for m in sys.modules if m.startswith('rgbd2scene.stages.'))\n"
+            "assert loaded == ['rgbd2scene.stages.capture', 'rgbd2scene.stages.mesh'], loaded\n"
+            "import rgbd2scene.stages as stages\n"
+            "for name in stages.__all__:\n"
+            "    assert getattr(stages, name).__module__.startswith('rgbd2scene.stages.'), name\n"
+            "from rgbd2scene.stages import RenderOptions, build_scene_folder\n"
+            "assert not hasattr(stages, 'no_such_name')\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
