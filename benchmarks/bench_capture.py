@@ -41,7 +41,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rgbd2scene.capture.camera import Intrinsics, load_camera_json  # noqa: E402
+from rgbd2scene.capture.camera import load_camera_json  # noqa: E402
 from rgbd2scene.capture.readers import load_capture, read_rgb  # noqa: E402
 from rgbd2scene.capture.stereo import (  # noqa: E402
     RectifiedPair,
@@ -56,6 +56,7 @@ from rgbd2scene.capture.stereo import (  # noqa: E402
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first  # noqa: E402
 from rgbd2scene.conventions import pixel_grid  # noqa: E402
 from rgbd2scene.files import atomic  # noqa: E402
+from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
 from rgbd2scene.reconstruct.fusion import frame_agreement, reconstruct_fused  # noqa: E402
 from rgbd2scene.reconstruct.pipeline import MeshOptions, reconstruct  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402

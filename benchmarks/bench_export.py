@@ -3,7 +3,7 @@
 
 Usage: ``python benchmarks/bench_export.py [--quick] [--frames N] [--out MD]``
 
-A synthetic dataset (:func:`rgbd2scene.dataset.synthetic.write_plane_dataset`, 64x32, every ground-truth map)
+A synthetic dataset (:func:`rgbd2scene.groundtruth.synthetic.write_plane_dataset`, 64x32, every ground-truth map)
 of ``--frames`` frames (default 2,000; ``--quick`` 300) is written to ``bench_out/export`` once and exported
 in this one process to a ROS 1 bag, a ROS 2 (MCAP) bag and each standard format. The process's resident
 memory (``VmRSS`` from ``/proc/self/status``) is read every 10 % of the frames (as the exporter reads a frame's
@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rgbd2scene.dataset import Dataset  # noqa: E402
-from rgbd2scene.dataset.synthetic import PlaneScene, write_plane_dataset  # noqa: E402
 from rgbd2scene.export import FORMATS, RosOptions, export_ros  # noqa: E402
+from rgbd2scene.groundtruth.synthetic import PlaneScene, write_plane_dataset  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
 WORK = ROOT / "bench_out" / "export"

@@ -1,14 +1,19 @@
 """Speed of the reconstruction stage (issue: fill + mesh + smooth <= 1 s compute, command <= 3 s wall).
 
-Runs ``rgbd2scene mesh`` on the TUM frame (and the bundled sample) several times in fresh processes,
-side by side, and prints the stage times reported by the command and the wall time including the
-interpreter start. Usage: ``python benchmarks/bench_mesh.py [--repeats N]``.
+Runs ``rgbd2scene mesh`` on the TUM frame (and the bundled sample) several times in fresh processes, the
+variants interleaved (run k of every variant before run k+1 of any, so a change of the machine's load hits
+them alike), and prints the median stage times reported by the command, the wall time including the
+interpreter start and the CPU time of the process (all threads), with the load average at start and end.
+``--against DIR`` runs another checkout of the repository (its ``rgbd2scene`` on ``PYTHONPATH``) as one more
+variant, for a ratio measured side by side. Usage: ``python benchmarks/bench_mesh.py [--repeats N] [--against DIR]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -33,36 +38,52 @@ def cases() -> list[tuple[str, list[str]]]:
     return out
 
 
-def run_once(args: list[str], extra: list[str]) -> dict:
+def run_once(args: list[str], extra: list[str], code: Path = REPO) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(code)}
     with tempfile.TemporaryDirectory() as tmp:
+        cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
-        subprocess.run([str(RGBD2SCENE), "mesh", *args, *extra, "-o", tmp], check=True, capture_output=True)
+        subprocess.run([str(RGBD2SCENE), "mesh", *args, *extra, "-o", tmp], check=True, capture_output=True,
+                       env=env)
         wall = time.perf_counter() - t0
+        cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         timings = json.loads((Path(tmp) / "scene.json").read_text())["timings"]
-    return {"wall_s": wall, **timings}
+    cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
+    return {"wall_s": wall, "cpu_s": cpu, **timings}
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--against", type=Path, help="another checkout, run side by side (default settings)")
     args = parser.parse_args(argv)
-    variants = [("default (with overview.png)", []), ("--no-overview", ["--no-overview"])]
-    print(f"rgbd2scene mesh, median of {args.repeats} fresh processes, defaults: fill auto, ray smoothing x10")
-    header = f"{'case':24s} {'variant':28s} {'fill':>6s} {'mesh':>6s} {'smooth':>6s} {'compute':>8s} " \
-             f"{'write':>6s} {'wall':>6s}"
+    variants = [("default (with overview.png)", [], REPO), ("--no-overview", ["--no-overview"], REPO)]
+    if args.against:
+        variants.append((f"default, {args.against}", [], args.against.resolve()))
+    load = os.getloadavg()[0]
+    print(f"rgbd2scene mesh, median of {args.repeats} fresh processes (variants interleaved), defaults: fill auto, "
+          f"ray smoothing x10; {os.cpu_count()} CPUs, load average (1 min) at start {load:.2f}")
+    header = "| case | variant | fill s | mesh s | smooth s | compute s | write s | wall s | CPU s |"
     print(header)
-    print("-" * len(header))
+    print("|---" * 9 + "|")
     for name, case_args in cases():
+        runs: dict[str, list[dict]] = {label: [] for label, _, _ in variants}
+        for _ in range(args.repeats):
+            for label, extra, code in variants:
+                runs[label].append(run_once(case_args, extra, code))
         rows = {}
-        for label, extra in variants:
-            runs = [run_once(case_args, extra) for _ in range(args.repeats)]
-            med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+        for label, _, _ in variants:
+            med = {k: statistics.median(r[k] for r in runs[label]) for k in runs[label][0]}
             rows[label] = med
-            print(f"{name:24s} {label:28s} {med['fill_s']:6.3f} {med['mesh_s']:6.3f} {med['smooth_s']:6.3f} "
-                  f"{med['compute_s']:8.3f} {med['write_s']:6.3f} {med['wall_s']:6.2f}")
+            print(f"| {name} | {label} | {med['fill_s']:.3f} | {med['mesh_s']:.3f} | {med['smooth_s']:.3f} | "
+                  f"{med['compute_s']:.3f} | {med['write_s']:.3f} | {med['wall_s']:.2f} | {med['cpu_s']:.2f} |")
         a, b = rows[variants[0][0]]["wall_s"], rows[variants[1][0]]["wall_s"]
-        print(f"{'':24s} overview costs {a - b:+.2f} s wall ({a / b:.2f}x)")
-    print("targets: compute <= 1 s, wall <= 3 s (TUM)")
+        print(f"{name}: the overview costs {a - b:+.2f} s wall ({a / b:.2f}x)")
+        if args.against:
+            c = rows[variants[2][0]]
+            print(f"{name}: this checkout / {args.against}: wall {a / c['wall_s']:.2f}x, "
+                  f"CPU {rows[variants[0][0]]['cpu_s'] / c['cpu_s']:.2f}x")
+    print(f"load average (1 min) at end {os.getloadavg()[0]:.2f}; targets: fill <= 1 s, wall <= 3 s (TUM)")
     return 0
 
 

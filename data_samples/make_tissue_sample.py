@@ -504,7 +504,7 @@ slight blur, vignetting and sensor noise.
 
 Load it with
 `rgbd2scene.capture.load_capture(rgb, depth, intr, scale)` where
-`intr, scale = rgbd2scene.camera.load_camera_json("data_samples/tissue/camera.json")`.
+`intr, scale = rgbd2scene.capture.camera.load_camera_json("data_samples/tissue/camera.json")`.
 
 ## Sensor model
 

@@ -12,7 +12,7 @@ Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, 
 1. **RGB**: the scene as built, ``--samples`` per pixel (adaptive), the usual pixel filter, motion blur
    (shutter centred on the frame) and depth of field when asked for; Blender writes the linear Combined pass
    (and the Depth pass when an environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs:
-   environment effects, auto exposure and the sensor model (:class:`rgbd2scene.sensor.develop_frames.
+   environment effects, auto exposure and the sensor model (:class:`rgbd2scene.dataset.develop_frames.
    FrameDeveloper`).
 2. **Data** (only when ground truth is asked for): 1 sample per pixel, pixel filter width 0.01 (the one
    sample goes through the pixel centre, +-0.005 px), ``max_bounces`` 0, no denoising, a black emission
@@ -57,13 +57,13 @@ import numpy as np
 
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.dataset.develop_frames import FrameDeveloper
 from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import raw_render_plan
-from rgbd2scene.sensor.develop_frames import FrameDeveloper
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
 from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
 

@@ -60,11 +60,11 @@ from render.materials import (
     seen_vertices,
     use_metric_texture_space,
 )
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene.deformation import Deformation, rest_normals
 from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
 from rgbd2scene.scene.paths import CameraPath

@@ -10,7 +10,7 @@ Everything else calls these functions; see ``CONVENTIONS.md`` (shared contract),
 - Flow (du, dv) in pixels: p(t+1) = p(t) + flow_forward.
 
 The pinhole functions here (``backproject``, ``pixel_rays``, ``project``) are the distortion-free case of
-the camera model, :class:`rgbd2scene.camera.Camera`, which calls them for a pinhole; stages ask the camera.
+the camera model, :class:`rgbd2scene.geometry.camera.Camera`, which calls them for a pinhole; stages ask the camera.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ def write_scene_files(folder: Path, mesh, description=None) -> Path:
     colours when the mesh has none."""
     from rgbd2scene.files.images import write_image
     from rgbd2scene.files.meshio import write_ply
-    from rgbd2scene.reconstruct.mesh import Mesh
+    from rgbd2scene.geometry.mesh import Mesh
     from rgbd2scene.scene import folder as names
 
     folder = Path(folder)

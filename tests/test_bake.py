@@ -13,7 +13,7 @@ pytest.importorskip("OpenEXR")
 
 from render.materials import DETAIL_UV, detail_texture_size, detail_uv_window, seen_vertices  # noqa: E402
 from render.scene_builder import build_scene  # noqa: E402
-from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
+from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
 from rgbd2scene.scene.materials import TissueDetail  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.paths import CameraPath  # noqa: E402

@@ -21,13 +21,15 @@ import pytest
 import yaml
 
 from rgbd2scene.batch.config import load_config
-from rgbd2scene.batch.manifest import REQUIRED_COLUMNS, gt_checksum, read_manifest
+from rgbd2scene.batch.manifest import REQUIRED_COLUMNS, gt_checksum, read_manifest, rgb_checksum
 from rgbd2scene.batch.plan import make_plan, sequence_seed
 from rgbd2scene.batch.run import config_diff, root_lock
 from rgbd2scene.capture.camera import load_camera_json
 from rgbd2scene.cli import main
+from rgbd2scene.dataset import layout as ds_layout
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
+from rgbd2scene.groundtruth.synthetic import write_plane_dataset
 from tests.browser import Browser, chromium
 from tests.conftest import BUNDLED_SAMPLE, SHARED_SAMPLES
 
@@ -61,7 +63,7 @@ def captures(tmp_path_factory) -> Path:
         _write_capture(root / "second", cv2.imread(str(TUM / "TUM_color.png")),
                        cv2.imread(str(TUM / "TUM_depth.png"), cv2.IMREAD_UNCHANGED), tum_intr, 5000.0)
     else:
-        from rgbd2scene.capture.camera import Intrinsics
+        from rgbd2scene.geometry.camera import Intrinsics
 
         crop = Intrinsics(480, 360, intr.fx, intr.fy, intr.cx - 160, intr.cy - 120)
         _write_capture(root / "second", rgb[120:, 160:], depth[120:, 160:], crop, scale)
@@ -290,6 +292,37 @@ def test_config_diff_names_the_keys_that_differ(captures):
     assert config_diff(old, new) == ["captures[1].split", "render.samples"]  # render.chunk may change
 
 
+def test_rgb_checksum_covers_every_png_and_only_the_pngs(tmp_path):
+    """Two writes of the same dataset give one checksum; a changed byte of any rgb or rgb_clean PNG changes it,
+    a changed npz does not (that is the ground truth's checksum), and hashlib over the same stream agrees."""
+    import hashlib
+
+    a, b = write_plane_dataset(tmp_path / "a", frames=2), write_plane_dataset(tmp_path / "b", frames=2)
+    assert rgb_checksum(a, 2) == rgb_checksum(b, 2) != "" and gt_checksum(a, 2) == gt_checksum(b, 2)
+    expected = hashlib.sha256()
+    for index in range(2):
+        for eye in ("left", "right"):
+            name = f"{eye}/rgb/{index:06d}.png"
+            expected.update(f"{name}\n".encode() + (a / name).read_bytes())
+    assert rgb_checksum(a, 2) == expected.hexdigest()
+    assert rgb_checksum(a, 1) != rgb_checksum(a, 2)
+    clean = ds_layout.clean_rgb_path(b, "right", 1)
+    clean.parent.mkdir()
+    clean.write_bytes(ds_layout.frame_paths(b, "right", 1).rgb.read_bytes())
+    assert rgb_checksum(b, 2) != rgb_checksum(a, 2)
+    for path in (ds_layout.frame_paths(a, "left", 1).rgb, clean):
+        before = rgb_checksum(path.parents[2], 2)
+        data = bytearray(path.read_bytes())
+        data[-20] ^= 1
+        path.write_bytes(bytes(data))
+        assert rgb_checksum(path.parents[2], 2) != before
+    gt = ds_layout.frame_paths(a, "left", 0).gt
+    before_rgb, before_gt = rgb_checksum(a, 2), gt_checksum(a, 2)
+    gt.write_bytes(gt.read_bytes() + b"\0")
+    assert rgb_checksum(a, 2) == before_rgb and gt_checksum(a, 2) != before_gt
+    assert rgb_checksum(tmp_path / "missing", 2) == ""
+
+
 # --- builds ----------------------------------------------------------------------------------------------
 
 def test_reference_build_manifest_datasets_and_status(reference, capsys):
@@ -307,6 +340,7 @@ def test_reference_build_manifest_datasets_and_status(reference, capsys):
         assert (ds.width, ds.height, ds.frames) == (64, 32, 3)
         assert ds.frame_indices() == [0, 1, 2]
         assert row.gt_sha256 == gt_checksum(reference / row.sequence, 3) != ""
+        assert row.rgb_sha256 == rgb_checksum(reference / row.sequence, 3) != ""
         assert row.frames_done == 3
         assert (reference / row.sequence / "contact_sheet.png").is_file()
         scene = json.loads((reference / "scenes" / row.sequence / "scene.json").read_text())
@@ -347,8 +381,9 @@ def test_local_dask_cluster_gives_byte_identical_ground_truth(reference, capture
     expected = npz_bytes(reference)
     assert len(expected) == 2 * 2 * 3
     assert npz_bytes(root) == expected
-    assert [(r.sequence, r.seed, r.settings, r.gt_sha256) for r in read_manifest(root)] == \
-           [(r.sequence, r.seed, r.settings, r.gt_sha256) for r in read_manifest(reference)]
+    # the same configuration gives the same bytes, images included
+    assert [(r.sequence, r.seed, r.settings, r.gt_sha256, r.rgb_sha256) for r in read_manifest(root)] == \
+           [(r.sequence, r.seed, r.settings, r.gt_sha256, r.rgb_sha256) for r in read_manifest(reference)]
     assert leftovers(root) == []
 
 
@@ -393,7 +428,8 @@ def test_kill_9_then_resume_equals_an_uninterrupted_build(reference, captures):
     assert npz_bytes(root) == npz_bytes(reference)
     assert {p: p.stat().st_ino for p in kept} == kept  # finished images were not rendered again
     assert leftovers(root) == []
-    assert [r.gt_sha256 for r in read_manifest(root)] == [r.gt_sha256 for r in read_manifest(reference)]
+    assert [(r.gt_sha256, r.rgb_sha256) for r in read_manifest(root)] == \
+           [(r.gt_sha256, r.rgb_sha256) for r in read_manifest(reference)]
 
 
 def test_failed_sequence_is_recorded_and_retried_alone(reference, captures, tmp_path, capsys):

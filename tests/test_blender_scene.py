@@ -21,7 +21,7 @@ cv2 = pytest.importorskip("cv2")
 
 from render.scene_builder import build_scene  # noqa: E402
 from rgbd2scene import conventions as cv  # noqa: E402
-from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
+from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.paths import CameraPath, look_at  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402

@@ -3,8 +3,9 @@ import json
 import numpy as np
 import pytest
 
-from rgbd2scene.capture.camera import PRESETS, Intrinsics, load_camera_json, preset
+from rgbd2scene.capture.camera import PRESETS, load_camera_json, preset
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.options import OptionError
 
 

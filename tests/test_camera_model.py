@@ -9,11 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import backproject, pixel_rays, project
 from rgbd2scene.errors import UserError
-from rgbd2scene.groundtruth.raycast import Raycaster
+from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.raycast import Raycaster
 from rgbd2scene.reconstruct.mesh import grid_mesh
 from rgbd2scene.scene.rig import StereoRig
 
@@ -152,7 +151,7 @@ def test_the_capture_pose_sees_its_own_grid_mesh_everywhere():
 
 
 def test_a_scope_camera_json_with_distortion(tmp_path, capsys):
-    from rgbd2scene.camera import load_camera
+    from rgbd2scene.capture.camera import load_camera
 
     path = tmp_path / "scope.json"
     path.write_text(json.dumps({"width": 128, "height": 96, "fx": 100.0, "fy": 100.0, "cx": 63.5, "cy": 47.5,

@@ -2,9 +2,10 @@ import cv2
 import numpy as np
 import pytest
 
-from rgbd2scene.capture.camera import Intrinsics, preset
+from rgbd2scene.capture.camera import preset
 from rgbd2scene.capture.readers import load_capture, read_depth, read_rgb
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Intrinsics
 
 INTR = Intrinsics(64, 48, 50.0, 50.0, 31.5, 23.5)
 

@@ -1,7 +1,7 @@
 import numpy as np
 
 from rgbd2scene import conventions as cv
-from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene.paths import look_at
 
 K = Intrinsics(64, 32, 40.0, 45.0, 30.0, 17.0).K

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from rgbd2scene.dataset import Dataset, frame_paths
-from rgbd2scene.dataset.synthetic import PlaneScene, write_plane_dataset
 from rgbd2scene.errors import UserError
+from rgbd2scene.groundtruth.synthetic import PlaneScene, write_plane_dataset
 
 
 @pytest.fixture

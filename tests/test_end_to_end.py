@@ -14,7 +14,7 @@ import pytest
 from rgbd2scene.capture.camera import load_camera_json
 from rgbd2scene.capture.readers import load_capture
 from rgbd2scene.cli import main
-from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.reconstruct.pipeline import reconstruct
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.paths import make_path, path_coverage

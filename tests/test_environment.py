@@ -81,7 +81,7 @@ def test_apply_environment_and_options():
 
 
 def test_smoke_from_the_scene_configuration_and_the_render_switch(tmp_path):
-    from rgbd2scene.capture.camera import Intrinsics
+    from rgbd2scene.geometry.camera import Intrinsics
     from rgbd2scene.scene.config import ConfigError, parse_scene_config
     from rgbd2scene.scene.model import SceneDescription
     from rgbd2scene.scene.paths import CameraPath

@@ -10,9 +10,9 @@ import pytest
 
 from rgbd2scene.cli import main
 from rgbd2scene.dataset import Dataset
-from rgbd2scene.dataset.synthetic import PlaneScene, write_plane_dataset
 from rgbd2scene.evaluate.metrics import METRICS, depth_metrics, fill_invalid, score_frame
 from rgbd2scene.files.flowio import write_pfm
+from rgbd2scene.groundtruth.synthetic import PlaneScene, write_plane_dataset
 
 FRAMES = 3
 

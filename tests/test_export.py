@@ -8,9 +8,9 @@ import pytest
 
 from rgbd2scene.cli import main
 from rgbd2scene.dataset import Dataset
-from rgbd2scene.dataset.synthetic import PlaneScene, write_plane_dataset
 from rgbd2scene.export import FORMATS
 from rgbd2scene.export.kitti import encode_disparity, encode_flow
+from rgbd2scene.groundtruth.synthetic import PlaneScene, write_plane_dataset
 
 cv2 = pytest.importorskip("cv2")
 FRAMES = 3

@@ -12,8 +12,8 @@ import yaml
 from rgbd2scene.cli import main
 from rgbd2scene.conventions import invert_pose
 from rgbd2scene.dataset import Dataset
-from rgbd2scene.dataset.synthetic import write_plane_dataset
 from rgbd2scene.export.ros import DEFAULT_START_S, RosTopics
+from rgbd2scene.groundtruth.synthetic import write_plane_dataset
 
 FRAMES = 4
 RATE = 12.5

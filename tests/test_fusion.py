@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics, load_camera_json
+from rgbd2scene.capture.camera import load_camera_json
 from rgbd2scene.capture.readers import Capture, load_capture
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
 from rgbd2scene.cli import main
 from rgbd2scene.conventions import backproject, invert_pose, pixel_rays, project, transform_points
 from rgbd2scene.files.meshio import read_ply
-from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.reconstruct.fusion import estimate_poses, frame_agreement, reconstruct_fused
 from rgbd2scene.reconstruct.pipeline import MeshOptions
 

@@ -15,7 +15,7 @@ import pytest
 from rgbd2scene import conventions as cv
 from rgbd2scene.capture.camera import load_camera_json
 from rgbd2scene.capture.readers import load_capture
-from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.reconstruct.pipeline import MeshOptions, reconstruct
 from rgbd2scene.scene.objects.instrument import PART_CLASSES, PARTS, Instrument
 from rgbd2scene.scene.objects.motion import MotionOptions, default_motion

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
+from itertools import pairwise
 from pathlib import Path
 
 import pytest
@@ -35,5 +37,93 @@ def test_importing_the_package_changes_no_process_state():
             "changed = sorted(k for k in set(env) | set(os.environ) if env.get(k) != os.environ.get(k))\n"
             "assert not changed, changed\n"
             "import sys; assert 'bpy' not in sys.modules, 'the numpy core imported bpy'\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+def _package_imports() -> dict[str, dict[str, str]]:
+    """Who imports whom among rgbd2scene's top-level units (a subpackage or a top-level module): every import
+    statement of every module, function-level and relative ones included, as {importer: {imported: where}}."""
+    root = REPO / "rgbd2scene"
+    graph: dict[str, dict[str, str]] = {}
+    for path in sorted(root.rglob("*.py")):
+        parts = path.relative_to(REPO).with_suffix("").parts
+        package, unit = parts[:-1], parts[1]  # a relative import counts from the module's package
+        if unit == "__init__":  # rgbd2scene/__init__.py: the package itself, no unit
+            continue
+        edges = graph.setdefault(unit, {})
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = ".".join(package[: len(package) - node.level + 1]) if node.level else ""
+                module = ".".join(x for x in (base, node.module) if x)
+                names = [module] + [f"{module}.{alias.name}" for alias in node.names]
+            else:
+                continue
+            for name in names:
+                target = name.split(".")
+                if target[0] == "rgbd2scene" and len(target) > 1 and target[1] != unit and (
+                        (root / target[1]).is_dir() or (root / f"{target[1]}.py").is_file()):
+                    edges.setdefault(target[1], f"{path.relative_to(REPO)}:{node.lineno}")
+    return graph
+
+
+def _cycle(graph: dict[str, dict[str, str]]) -> list[str] | None:
+    """One import cycle of the graph as [a, b, ..., a], or None (depth-first search)."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(unit: str) -> list[str] | None:
+        state[unit] = 1
+        path.append(unit)
+        for dep in sorted(graph.get(unit, {})):
+            if state.get(dep) == 1:
+                return path[path.index(dep):] + [dep]
+            if dep not in state and (found := visit(dep)):
+                return found
+        path.pop()
+        state[unit] = 2
+        return None
+
+    for unit in sorted(graph):
+        if unit not in state and (found := visit(unit)):
+            return found
+    return None
+
+
+def test_cycle_search_finds_a_planted_cycle():
+    assert _cycle({"a": {"b": ""}, "b": {"c": ""}, "c": {"a": ""}, "d": {"a": ""}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b": ""}, "b": {"c": ""}, "d": {"a": "", "c": ""}}) is None
+
+
+def test_subpackages_import_each_other_without_a_cycle():
+    """The subpackages form layers (geometry under capture, files, reconstruction, scene and ground truth; the
+    stages, batch, cli and api on top): no chain of imports, lazy ones included, leads back to its start."""
+    graph = _package_imports()
+    # The parser sees the imports a reader sees (else an empty graph would pass).
+    assert {"geometry", "errors"} <= set(graph["files"]) and "geometry" in graph["capture"], graph["files"]
+    cycle = _cycle(graph)
+    assert cycle is None, " -> ".join(f"{a} ({graph[a][b]})" for a, b in pairwise(cycle)) + f" -> {cycle[-1]}"
+
+
+def test_geometry_imports_only_the_conventions():
+    """The shared geometry (camera model, mesh, ray caster) sits below every stage: it may use the conventions
+    and the errors, nothing else of the package."""
+    assert set(_package_imports()["geometry"]) <= {"conventions", "errors"}
+
+
+def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
+    """``rgbd2scene mesh`` imports the capture and mesh stages only (the scene, render and Blender stages cost
+    a few tenths of a second at every start); ``rgbd2scene.stages.X`` still gives every documented name."""
+    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
+            "cli.build_parser('mesh')\n"
+            "loaded = sorted(m for m in sys.modules if m.startswith('rgbd2scene.stages.'))\n"
+            "assert loaded == ['rgbd2scene.stages.capture', 'rgbd2scene.stages.mesh'], loaded\n"
+            "import rgbd2scene.stages as stages\n"
+            "for name in stages.__all__:\n"
+            "    assert getattr(stages, name).__module__.startswith('rgbd2scene.stages.'), name\n"
+            "from rgbd2scene.stages import RenderOptions, build_scene_folder\n"
+            "assert not hasattr(stages, 'no_such_name')\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert result.returncode == 0, result.stderr[-2000:]

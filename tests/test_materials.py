@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from rgbd2scene import conventions as cv
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene.materials import MAX_MOTTLE_STRENGTH, TissueDetail
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath, look_at

@@ -10,7 +10,8 @@ import pytest
 from rgbd2scene.capture.camera import PRESETS
 from rgbd2scene.conventions import project
 from rgbd2scene.errors import UserError
-from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
+from rgbd2scene.geometry.mesh import Mesh
+from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 24, 32
 FX, FY = 30.0, 28.0

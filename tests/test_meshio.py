@@ -8,7 +8,8 @@ import pytest
 
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.meshio import obj_text, read_ply, write_ply, write_textured_obj
-from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
+from rgbd2scene.geometry.mesh import Mesh
+from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 20, 28
 K = np.array([[40.0, 0.0, (W - 1) / 2.0], [0.0, 40.0, (H - 1) / 2.0], [0.0, 0.0, 1.0]])

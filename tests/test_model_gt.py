@@ -15,12 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.files.meshio import write_ply
-from rgbd2scene.groundtruth.raycast import raycaster
-from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.mesh import Mesh
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.scene.config import parse_scene_config
 from rgbd2scene.scene.deformation import Deformation
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object

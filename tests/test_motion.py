@@ -16,12 +16,11 @@ import numpy as np
 import pytest
 
 from rgbd2scene import conventions as cv
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.files.meshio import write_ply
+from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.mesh import Mesh
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry
-from rgbd2scene.reconstruct.mesh import Mesh
 from rgbd2scene.scene.deformation import Deformation, SurfaceAnchor, rest_normals
 from rgbd2scene.scene.model import (
     Light,

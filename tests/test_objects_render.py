@@ -18,10 +18,10 @@ pytest.importorskip("bpy")
 pytest.importorskip("OpenEXR")
 
 from rgbd2scene import conventions as cv  # noqa: E402
-from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
 from rgbd2scene.dataset import layout as ds  # noqa: E402
 from rgbd2scene.files.meshio import read_ply  # noqa: E402
-from rgbd2scene.groundtruth.raycast import raycaster  # noqa: E402
+from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
+from rgbd2scene.geometry.raycast import raycaster  # noqa: E402
 from rgbd2scene.scene.config import parse_scene_config  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.objects.assemble import Tissue, add_objects  # noqa: E402

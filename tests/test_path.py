@@ -7,11 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import backproject, project, transform_points
 from rgbd2scene.errors import UserError
-from rgbd2scene.groundtruth.raycast import raycaster
-from rgbd2scene.reconstruct.mesh import vertex_normals
+from rgbd2scene.geometry.camera import Camera
+from rgbd2scene.geometry.mesh import vertex_normals
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.scene.paths import (
     PATH_GENERATORS,
     PATH_KINDS,

@@ -17,10 +17,9 @@ import cv2
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig, read_scope_calibration

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.files.meshio import write_ply
-from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
+from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.mesh import Mesh
+from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry
-from rgbd2scene.reconstruct.mesh import Mesh
 from rgbd2scene.scene.deformation import Deformation
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath, look_at

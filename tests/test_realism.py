@@ -12,8 +12,8 @@ import pytest
 
 from rgbd2scene.cli import main
 from rgbd2scene.dataset import Dataset
-from rgbd2scene.dataset.synthetic import write_plane_dataset
 from rgbd2scene.files.images import read_image, write_image
+from rgbd2scene.groundtruth.synthetic import write_plane_dataset
 from rgbd2scene.realism import measures as m
 from rgbd2scene.realism import stereo
 from rgbd2scene.realism.report import Row

@@ -18,9 +18,9 @@ import pytest
 from scipy import ndimage
 
 from rgbd2scene import conventions as cv
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.groundtruth.passes import MAPS, gt_from_passes, parse_maps
 from rgbd2scene.scene.model import Light, Material, Part, SceneDescription, SceneObject, tissue_object
 from rgbd2scene.scene.paths import CameraPath
@@ -131,7 +131,7 @@ pytest.importorskip("bpy")
 pytest.importorskip("OpenEXR")
 
 from rgbd2scene.files.meshio import write_ply  # noqa: E402
-from rgbd2scene.reconstruct.mesh import Mesh  # noqa: E402
+from rgbd2scene.geometry.mesh import Mesh  # noqa: E402
 from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import RenderError, render_dataset  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.files.meshio import read_ply, write_ply
-from rgbd2scene.groundtruth.raycast import raycaster
-from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.geometry.camera import Intrinsics
+from rgbd2scene.geometry.mesh import Mesh
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.scene.config import ConfigError, load_scene_config, parse_scene_config
 from rgbd2scene.scene.deformation import Deformation, rest_normals
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object

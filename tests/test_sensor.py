@@ -193,8 +193,8 @@ def test_sensor_options_are_a_nested_record_of_the_render_options():
 
 def test_frame_developer_writes_records_first_and_takes_a_lens_step(tmp_path):
     from rgbd2scene.dataset import layout as ds
+    from rgbd2scene.dataset.develop_frames import FrameDeveloper
     from rgbd2scene.environment import EnvironmentOptions
-    from rgbd2scene.sensor.develop_frames import FrameDeveloper
 
     K = np.array([[40.0, 0, 15.5], [0, 40.0, 11.5], [0, 0, 1]])
     rng = np.random.default_rng(6)

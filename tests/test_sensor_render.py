@@ -13,8 +13,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig

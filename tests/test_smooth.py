@@ -116,7 +116,7 @@ def test_corrective_reduces_noise():
 
 def test_corrective_matches_blender_formula_on_one_vertex():
     # A fan: centre 0 with four neighbours; one length-weighted step by hand.
-    from rgbd2scene.reconstruct.mesh import Mesh
+    from rgbd2scene.geometry.mesh import Mesh
 
     v = np.array([[0, 0, 1.0], [1, 0, 1.2], [0, 1, 1.0], [-2, 0, 1.0], [0, -1, 0.9]])
     t = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]], dtype=np.int32)

@@ -244,7 +244,7 @@ def test_hamlyn_render_through_the_capture_camera_reproduces_the_left_image(haml
     with. A 96x64 window over the heart is rendered (the capture intrinsics shifted to that window), one sample
     through each pixel centre, so rendered pixels and texture pixels correspond one to one."""
     pytest.importorskip("bpy")
-    from rgbd2scene.capture.camera import Intrinsics
+    from rgbd2scene.geometry.camera import Intrinsics
     from tests.test_blender_scene import build, describe, render_eyes
 
     _, capture, recon = hamlyn

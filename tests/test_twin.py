@@ -67,10 +67,10 @@ def test_stereo_twin_is_the_calibrated_pair_at_the_capture(shared_samples, tmp_p
     pytest.importorskip("bpy")
     from scipy.ndimage import map_coordinates
 
-    from rgbd2scene.camera import Camera
     from rgbd2scene.cli import main
     from rgbd2scene.conventions import invert_pose, transform_points
     from rgbd2scene.dataset import layout as ds
+    from rgbd2scene.geometry.camera import Camera
     from rgbd2scene.stages.render import render_gt_only
 
     hamlyn = shared_samples / "hamlyn_silicone_heart_phantom_stereo"

@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import backproject, disparity_from_depth, flow_between_cameras, transform_points
-from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.geometry.camera import Camera
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.scene.paths import look_at
 from rgbd2scene.scene.rig import StereoRig
 from rgbd2scene.verify import Check, StaticMeshOracle, Tolerances, format_report, verify_dataset
@@ -199,7 +199,7 @@ def test_tolerances_and_errors(dataset, tmp_path):
 def test_mesh_from_a_textured_obj(dataset, tmp_path):
     """An OBJ with one UV per vertex, as ``rgbd2scene mesh`` writes it: smooth normals need its shared vertices."""
     from rgbd2scene.files.meshio import write_textured_obj
-    from rgbd2scene.reconstruct.mesh import Mesh
+    from rgbd2scene.geometry.mesh import Mesh
 
     v, t = bumpy_grid()
     uvs = (v[:, :2] - v[:, :2].min(axis=0)) / np.ptp(v[:, :2], axis=0)

@@ -101,7 +101,7 @@ def _gone_after_kill(proc: subprocess.Popen, worker: int, sig=signal.SIGKILL) ->
 
 pytest.importorskip("bpy")
 
-from rgbd2scene.capture.camera import Intrinsics  # noqa: E402
+from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.paths import CameraPath  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402

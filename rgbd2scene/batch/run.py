@@ -33,7 +33,7 @@ from pathlib import Path
 
 from rgbd2scene.batch.config import EXECUTION_KEYS, load_config
 from rgbd2scene.batch.engine import check_engine, open_engine
-from rgbd2scene.batch.manifest import Row, gt_checksum, read_manifest, write_manifest
+from rgbd2scene.batch.manifest import Row, gt_checksum, read_manifest, rgb_checksum, write_manifest
 from rgbd2scene.batch.plan import Plan, SequencePlan, make_plan
 from rgbd2scene.batch.tasks import Outcome, build_mesh, build_scene, render_chunk
 from rgbd2scene.dataset import layout as ds
@@ -201,7 +201,8 @@ def merge_rows(plan: Plan, old: list[Row], root: Path, retry_failed: bool) -> di
         before = previous.get(seq.name)
         row = Row(seq.name, seq.capture.name, seq.split, seq.seed, seq.path, seq.frames, settings=dict(seq.sampled))
         if before is not None:
-            row.seconds, row.error, row.gt_sha256 = before.seconds, before.error, before.gt_sha256
+            row.seconds, row.error = before.seconds, before.error
+            row.gt_sha256, row.rgb_sha256 = before.gt_sha256, before.rgb_sha256
             row.status = before.status
         row.frames_done = _frames_done(root, seq, with_gt)
         if row.status == "done" and row.frames_done < seq.frames:
@@ -209,7 +210,7 @@ def merge_rows(plan: Plan, old: list[Row], root: Path, retry_failed: bool) -> di
         if row.status == "failed" and retry_failed:
             row.status = "pending"
         if row.status == "pending":
-            row.error, row.gt_sha256 = "", ""
+            row.error, row.gt_sha256, row.rgb_sha256 = "", "", ""
         rows[seq.name] = row
     return rows
 
@@ -365,6 +366,7 @@ class _Driver:
         self.rendered += job.frames - row.frames_done
         row.frames_done = job.frames
         row.gt_sha256 = gt_checksum(job.out, job.frames)
+        row.rgb_sha256 = rgb_checksum(job.out, job.frames)
         row.status, row.error = "done", ""
         self.say(f"done    {seq.name} ({seq.split}, {seq.path}, {seq.frames} frames, {row.seconds:.1f} s)")
         self.write_manifest()

@@ -1,82 +1,17 @@
-"""Pinhole intrinsics: the ``Intrinsics`` dataclass, named presets and camera-JSON parsing."""
+"""A capture's camera from the user's input: named presets and camera-JSON parsing (intrinsics and, for a scope,
+its distortion). The model itself (:class:`Intrinsics`, :class:`Camera`) is :mod:`rgbd2scene.geometry.camera`."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from rgbd2scene.errors import UserError
+from rgbd2scene.files.atomic import read_json_object
+from rgbd2scene.geometry.camera import DISTORTION_LENGTHS, Camera, Intrinsics, warn
 from rgbd2scene.options import OptionError
-
-
-@dataclass(frozen=True)
-class Intrinsics:
-    """OpenCV pinhole intrinsics of a width x height image (pixel centres at integers)."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-
-    @property
-    def K(self) -> np.ndarray:
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @classmethod
-    def from_K(cls, K, width: int, height: int) -> Intrinsics:
-        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
-        return cls(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
-
-    @classmethod
-    def from_fov(cls, width: int, height: int, fov_x_deg: float) -> Intrinsics:
-        """Square pixels, centred principal point, horizontal field of view in degrees."""
-        fx = (width / 2.0) / math.tan(math.radians(fov_x_deg) / 2.0)
-        return cls(int(width), int(height), fx, fx, (width - 1) / 2.0, (height - 1) / 2.0)
-
-    @property
-    def fov_x_deg(self) -> float:
-        return math.degrees(2.0 * math.atan(self.width / (2.0 * self.fx)))
-
-    def resized(self, width: int, height: int) -> Intrinsics:
-        """The same camera sampled at another resolution (pixel-centre aware scaling)."""
-        sx, sy = width / self.width, height / self.height
-        return Intrinsics(
-            int(width), int(height), self.fx * sx, self.fy * sy,
-            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
-        )
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> Intrinsics:
-        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]))
-
-    def check(self, source: str = "intrinsics") -> None:
-        """Raise ``UserError`` unless the intrinsics are plausible for their own image size."""
-        values = (self.fx, self.fy, self.cx, self.cy)
-        if not all(math.isfinite(x) for x in values):
-            raise UserError(f"{source}: intrinsics contain non-finite values {values}")
-        if self.width <= 0 or self.height <= 0:
-            raise UserError(f"{source}: image size {self.width}x{self.height} is not positive")
-        if self.fx <= 0 or self.fy <= 0:
-            raise UserError(f"{source}: focal lengths must be positive (fx={self.fx}, fy={self.fy})")
-        if not (0 <= self.cx <= self.width - 1 and 0 <= self.cy <= self.height - 1):
-            raise UserError(
-                f"{source}: principal point ({self.cx}, {self.cy}) lies outside the "
-                f"{self.width}x{self.height} image"
-            )
-        if not (0.2 < self.fx / self.fy < 5.0):
-            raise UserError(f"{source}: implausible aspect fx/fy = {self.fx / self.fy:.3g}")
-        fov = self.fov_x_deg
-        if not (5.0 <= fov <= 170.0):
-            raise UserError(f"{source}: implausible horizontal field of view {fov:.1f} deg (fx={self.fx})")
-
 
 #: Named cameras. PrimeSense/Kinect v1 default (also TUM's "ROS default") and the three TUM calibrations.
 PRESETS: dict[str, Intrinsics] = {
@@ -110,8 +45,6 @@ def load_camera_json(path: str | Path) -> tuple[Intrinsics, float | None]:
     path = Path(path)
     if not path.is_file():
         raise UserError(f"{path}: camera file not found")
-    from rgbd2scene.files.atomic import read_json_object  # files/ imports the reconstruction: not at load
-
     data = read_json_object(path, "JSON camera file")
     try:
         width, height = int(data["width"]), int(data["height"])
@@ -155,3 +88,20 @@ def camera_for(camera_json: str | Path | None = None, preset_name: str | None = 
     if depth_scale is None and preset_name:
         depth_scale = PRESET_DEPTH_SCALE.get(name.lower())
     return preset(name), depth_scale
+
+
+def load_camera(path) -> Camera:
+    """A scope camera from a camera JSON (CONVENTIONS section 7): the intrinsics of
+    :func:`~rgbd2scene.capture.camera.load_camera_json` and an optional ``"distortion"`` (OpenCV order);
+    checked (:meth:`Camera.check`: its warning, for a lens folding inside the image, is printed)."""
+    intrinsics, _ = load_camera_json(path)
+    D = read_json_object(path, "JSON camera file").get("distortion", ())
+    try:
+        D = np.asarray(D if D is not None else (), dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise UserError(f"{path}: distortion must be a list of numbers, got {D!r}") from None
+    if len(D) not in DISTORTION_LENGTHS:
+        raise UserError(f"{path}: distortion must have 4, 5, 8, 12 or 14 coefficients, got {len(D)}")
+    camera = Camera(intrinsics, D)
+    warn(camera.check(str(path)))
+    return camera

@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.options import OptionError
 
 DEPTH_FORMATS = ("auto", "png", "sun", "nyu", "exr", "npy")

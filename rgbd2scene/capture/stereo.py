@@ -40,10 +40,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.capture.readers import Capture, read_rgb
 from rgbd2scene.conventions import depth_from_disparity
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Intrinsics
 
 #: Numbers of distortion coefficients OpenCV's camera models take.
 DISTORTION_SIZES = (4, 5, 8, 12, 14)

@@ -85,7 +85,7 @@ class Dataset:
     def rig(self):
         """The stereo rig as rendered (:class:`~rgbd2scene.scene.rig.StereoRig`): ``dataset.json``'s
         ``"camera"`` record (CONVENTIONS 1.2), else the rectified pair of its K and baseline."""
-        from rgbd2scene.camera import Camera
+        from rgbd2scene.geometry.camera import Camera
         from rgbd2scene.scene.rig import StereoRig
 
         record = self.meta.get("camera")

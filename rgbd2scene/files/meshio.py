@@ -19,7 +19,7 @@ import numpy as np
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.files.images import write_image
-from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.geometry.mesh import Mesh
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",

@@ -2,7 +2,7 @@
 
 The scene model (:class:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry`: every part at its pose of the
 frame, deforming tissue deformed) is ray cast through the pixel centres of each eye's camera
-(:meth:`rgbd2scene.camera.Camera.rays`, lens distortion inverted exactly), which gives per pixel:
+(:meth:`rgbd2scene.geometry.camera.Camera.rays`, lens distortion inverted exactly), which gives per pixel:
 
 - ``depth``: the planar z of the hit (the ray has unit z, so the hit distance is z);
 - ``normals``: the interpolated angle-weighted vertex normal at the hit (what Blender's Normal pass shows
@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import disparity_from_depth, invert_pose, pixel_grid, transform_points
 from rgbd2scene.dataset import layout as ds
+from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.groundtruth.schema import MAPS
 from rgbd2scene.scene.model import SceneDescription

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.files.meshio import read_ply
-from rgbd2scene.groundtruth.raycast import Raycaster, triangles_in_view
-from rgbd2scene.reconstruct.mesh import vertex_normals
+from rgbd2scene.geometry.camera import Camera
+from rgbd2scene.geometry.mesh import vertex_normals
+from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
 
@@ -107,7 +107,7 @@ class SceneGeometry:
 
     def in_view(self, frame: int, cameras) -> np.ndarray:
         """Indices (into :attr:`triangles`) of the triangles that ``frame``'s two eyes may see
-        (:func:`~rgbd2scene.groundtruth.raycast.triangles_in_view`), computed once per frame and view.
+        (:func:`~rgbd2scene.geometry.raycast.triangles_in_view`), computed once per frame and view.
 
         ``cameras``: the (left, right) cameras, or one camera looked through at both eyes' poses."""
         pair = tuple(cameras) if isinstance(cameras, tuple | list) else (cameras, cameras)

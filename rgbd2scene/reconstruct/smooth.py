@@ -35,7 +35,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.geometry.mesh import Mesh
 
 METHODS = ("ray", "taubin", "corrective", "none")
 #: (iterations, strength) used when not given.

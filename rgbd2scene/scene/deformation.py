@@ -166,7 +166,7 @@ class SurfaceAnchor:
 
 def rest_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """The unit rest normals n_i the displacement follows (area-weighted, as the module docstring says)."""
-    from rgbd2scene.reconstruct.mesh import vertex_normals
+    from rgbd2scene.geometry.mesh import vertex_normals
 
     return vertex_normals(vertices, triangles, weighting="area")
 

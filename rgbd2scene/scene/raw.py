@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene.rig import StereoRig, rectification
 
 #: Border (pixels of the rectified render) kept around the raw rays, for the bilinear lookup.

@@ -11,8 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
-from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.geometry.camera import Camera, Intrinsics
 
 #: da Vinci-class stereo endoscope: 5 mm baseline; 512x256 as in the VisionBlender dataset.
 DEFAULT_BASELINE = 0.005
@@ -178,9 +177,9 @@ def read_scope_calibration(path, size: tuple[int, int] | None = None) -> StereoR
     """
     from pathlib import Path
 
-    from rgbd2scene.camera import warn
     from rgbd2scene.capture.stereo import make_calibration, read_stereo_calibration
     from rgbd2scene.errors import UserError
+    from rgbd2scene.geometry.camera import warn
 
     path = Path(path)
     if not path.exists():

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from rgbd2scene.camera import Camera, load_camera
-from rgbd2scene.capture.camera import Intrinsics
+from rgbd2scene.capture.camera import load_camera
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import link_or_copy, read_json_object, write_json
 from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
-from rgbd2scene.groundtruth.raycast import raycaster
+from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.raycast import raycaster
 from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.config import ConfigError, SceneConfig, load_scene_config, parse_scene_config

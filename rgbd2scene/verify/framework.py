@@ -26,9 +26,9 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.dataset.layout import FramePaths, frame_paths
 from rgbd2scene.errors import UserError
+from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.groundtruth.schema import DISTORTION_LENGTHS, SCHEMA, surface_mask
 
 if TYPE_CHECKING:

@@ -18,10 +18,10 @@ from typing import Protocol
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
-from rgbd2scene.groundtruth.raycast import Raycaster
+from rgbd2scene.geometry.camera import Camera
+from rgbd2scene.geometry.raycast import Raycaster
 
 #: Ways to shade a hit: interpolated angle-weighted vertex normals (a smooth-shaded render) or face normals.
 SHADINGS = ("smooth", "face")

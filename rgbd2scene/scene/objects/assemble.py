@@ -46,7 +46,7 @@ class Tissue:
 
     vertices: np.ndarray
     triangles: np.ndarray
-    rc: object  # groundtruth.raycast.Raycaster
+    rc: object  # geometry.raycast.Raycaster
     capture_K: np.ndarray | None = None
 
 

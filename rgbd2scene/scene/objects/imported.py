@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from rgbd2scene.conventions import invert_pose, transform_points
-from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.geometry.mesh import Mesh
 from rgbd2scene.scene.paths.track import CameraPath, Track
 from rgbd2scene.scene.paths.waypoints import load_path_file, pose_matrix, waypoint_path
 from rgbd2scene.scene.rig import StereoRig

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rgbd2scene.reconstruct.mesh import Mesh
+from rgbd2scene.geometry.mesh import Mesh
 
 LOOKS = ("metal", "dark_plastic")
 #: Part name -> class; the two jaws share a class (and never an id).

@@ -34,8 +34,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import invert_pose, transform_points
+from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.scene.objects.instrument import Instrument
 from rgbd2scene.scene.paths.track import CameraPath
 from rgbd2scene.scene.paths.waypoints import interpolate_keys

@@ -45,7 +45,7 @@ def make_path(kind: str, vertices=None, triangles=None, rig=None, frames: int = 
     ``settings`` records everything (and the coverage reached) to regenerate it. Bad arguments, or a
     mesh with no room for the path, raise ``ValueError``.
     """
-    from rgbd2scene.groundtruth.raycast import raycaster
+    from rgbd2scene.geometry.raycast import raycaster
 
     kind = kind.lower()
     generator = PATH_GENERATORS.get(kind)

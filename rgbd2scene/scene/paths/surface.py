@@ -124,7 +124,7 @@ def path_coverage(vertices, triangles, rig: StereoRig, path: CameraPath, scale: 
     ``scale`` < 1 checks at a reduced resolution (faster); ``rc`` is a ready ``raycast.Raycaster``
     (then vertices and triangles are not used).
     """
-    from rgbd2scene.groundtruth.raycast import raycaster
+    from rgbd2scene.geometry.raycast import raycaster
 
     rc = rc if rc is not None else raycaster(vertices, triangles)
     if scale != 1.0:

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import invert_pose, transform_points
+from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.verify.framework import Check, EyeFrame
 
 #: flag map -> step to the other frame

@@ -12,20 +12,89 @@ A lens model *folds* where its distorted radius stops growing with the undistort
 calibrations do so near the image corners): beyond that radius a point has no single image and a pixel no
 single ray, so :meth:`Camera.project` gives NaN there and :meth:`Camera.rays` NaN for pixels beyond the
 fold's image.
+
+A camera file becomes a :class:`Camera` in :func:`rgbd2scene.capture.camera.load_camera` (input is the capture
+stage's business; this module reads no files).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import cached_property, lru_cache
 
 import numpy as np
 
-from rgbd2scene.capture.camera import Intrinsics
 from rgbd2scene.conventions import backproject, in_image, pixel_grid, pixel_rays
 from rgbd2scene.conventions import project as pinhole_project
 from rgbd2scene.errors import UserError
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """OpenCV pinhole intrinsics of a width x height image (pixel centres at integers)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @classmethod
+    def from_K(cls, K, width: int, height: int) -> Intrinsics:
+        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+        return cls(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, fov_x_deg: float) -> Intrinsics:
+        """Square pixels, centred principal point, horizontal field of view in degrees."""
+        fx = (width / 2.0) / math.tan(math.radians(fov_x_deg) / 2.0)
+        return cls(int(width), int(height), fx, fx, (width - 1) / 2.0, (height - 1) / 2.0)
+
+    @property
+    def fov_x_deg(self) -> float:
+        return math.degrees(2.0 * math.atan(self.width / (2.0 * self.fx)))
+
+    def resized(self, width: int, height: int) -> Intrinsics:
+        """The same camera sampled at another resolution (pixel-centre aware scaling)."""
+        sx, sy = width / self.width, height / self.height
+        return Intrinsics(
+            int(width), int(height), self.fx * sx, self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
+        )
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Intrinsics:
+        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]))
+
+    def check(self, source: str = "intrinsics") -> None:
+        """Raise ``UserError`` unless the intrinsics are plausible for their own image size."""
+        values = (self.fx, self.fy, self.cx, self.cy)
+        if not all(math.isfinite(x) for x in values):
+            raise UserError(f"{source}: intrinsics contain non-finite values {values}")
+        if self.width <= 0 or self.height <= 0:
+            raise UserError(f"{source}: image size {self.width}x{self.height} is not positive")
+        if self.fx <= 0 or self.fy <= 0:
+            raise UserError(f"{source}: focal lengths must be positive (fx={self.fx}, fy={self.fy})")
+        if not (0 <= self.cx <= self.width - 1 and 0 <= self.cy <= self.height - 1):
+            raise UserError(
+                f"{source}: principal point ({self.cx}, {self.cy}) lies outside the "
+                f"{self.width}x{self.height} image"
+            )
+        if not (0.2 < self.fx / self.fy < 5.0):
+            raise UserError(f"{source}: implausible aspect fx/fy = {self.fx / self.fy:.3g}")
+        fov = self.fov_x_deg
+        if not (5.0 <= fov <= 170.0):
+            raise UserError(f"{source}: implausible horizontal field of view {fov:.1f} deg (fx={self.fx})")
+
 
 #: Distortion vector lengths OpenCV takes.
 DISTORTION_LENGTHS = (0, 4, 5, 8, 12, 14)
@@ -269,26 +338,6 @@ def _distorted_rays(camera: Camera) -> np.ndarray:
     rays = np.stack([x, y, np.where(np.isfinite(x), 1.0, np.nan)], axis=-1)
     rays.flags.writeable = False
     return rays
-
-
-def load_camera(path) -> Camera:
-    """A scope camera from a camera JSON (CONVENTIONS section 7): the intrinsics of
-    :func:`~rgbd2scene.capture.camera.load_camera_json` and an optional ``"distortion"`` (OpenCV order);
-    checked (:meth:`Camera.check`: its warning, for a lens folding inside the image, is printed)."""
-    from rgbd2scene.capture.camera import load_camera_json
-    from rgbd2scene.files.atomic import read_json_object
-
-    intrinsics, _ = load_camera_json(path)
-    D = read_json_object(path, "JSON camera file").get("distortion", ())
-    try:
-        D = np.asarray(D if D is not None else (), dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        raise UserError(f"{path}: distortion must be a list of numbers, got {D!r}") from None
-    if len(D) not in DISTORTION_LENGTHS:
-        raise UserError(f"{path}: distortion must have 4, 5, 8, 12 or 14 coefficients, got {len(D)}")
-    camera = Camera(intrinsics, D)
-    warn(camera.check(str(path)))
-    return camera
 
 
 _WARNED: set[str] = set()

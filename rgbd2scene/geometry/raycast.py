@@ -1,7 +1,7 @@
 """Exact per-pixel depth, normals and triangle ids of a mesh by ray casting (Open3D ``RaycastingScene``).
 
 Rays go through the pixel *centres* of this project's convention, along each pixel's own ray of the
-camera (:meth:`rgbd2scene.camera.Camera.rays`: the centre of integer pixel (u, v) is at (u, v), lens
+camera (:meth:`rgbd2scene.geometry.camera.Camera.rays`: the centre of integer pixel (u, v) is at (u, v), lens
 distortion inverted exactly), not through Open3D's ``create_rays_pinhole``, which shoots through
 (u + 0.5 - cx) / fx. Ray directions have unit camera z, so the hit distance Open3D returns (in units of
 the direction's length) is the planar depth itself.
@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from rgbd2scene.camera import Camera
 from rgbd2scene.conventions import invert_pose, orient_normals_to_camera, rotate, transform_points
-from rgbd2scene.reconstruct.mesh import vertex_normals
+from rgbd2scene.geometry.camera import Camera
+from rgbd2scene.geometry.mesh import vertex_normals
 
 _INVALID = np.uint32(0xFFFFFFFF)
 
