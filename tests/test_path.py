@@ -303,3 +303,22 @@ def test_scene_stage_reports_path_errors_as_user_errors(tissue, tmp_path):
     with pytest.raises(UserError) as exc:
         make_description(v, t, SceneOptions(path_file=str(bad)), rc=rc)
     assert str(exc.value).startswith(f"{bad}: a path file must hold a JSON object")
+
+
+def test_the_light_keeps_its_power_over_the_working_distance(tissue, tmp_path):
+    """Beyond 8 cm the scope light grows with the square of the distance the path looks at (a twin of a capture
+    taken from afar); nearer, it is the power asked for; --no-light-for-distance keeps it as asked."""
+    v, t, rc = tissue
+    near = make_description(v, t, SceneOptions(standoff=0.04, frames=3), rc=rc)
+    assert near.light.power_w == SceneOptions().light_power_w
+    far_pose = np.eye(4)
+    far_pose[2, 3] = float(np.median(v[:, 2])) - 0.5  # the camera 50 cm in front of the surface
+    path_file = tmp_path / "far.json"
+    path_file.write_text(json.dumps({"fps": 10, "frames": 2, "waypoints": [{"frame": 0, "T_world_cam":
+                                                                            far_pose.tolist()}]}))
+    far = make_description(v, t, SceneOptions(path_file=str(path_file)), rc=rc)
+    distance = rc.centre_depth(far.path.T_world_cam[0])
+    assert 0.45 < distance < 0.55
+    np.testing.assert_allclose(far.light.power_w, SceneOptions().light_power_w * (distance / 0.08) ** 2, rtol=1e-6)
+    fixed = make_description(v, t, SceneOptions(path_file=str(path_file), light_for_distance=False), rc=rc)
+    assert fixed.light.power_w == SceneOptions().light_power_w
