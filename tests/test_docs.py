@@ -1,0 +1,125 @@
+"""The documentation site builds with warnings as errors, and every page loads in a real headless browser with
+every internal link and image resolving (the site is built as `make docs` builds it)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+from urllib.parse import unquote, urlsplit
+
+import pytest
+
+from tests.browser import Browser, chromium
+
+REPO = Path(__file__).resolve().parents[1]
+
+LINKS = "Array.from(document.querySelectorAll('a[href]')).map(a => a.href)"
+
+
+def build_site(tmp_path_factory) -> Path:
+    site = tmp_path_factory.mktemp("site")
+    result = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet", "-f",
+                             str(REPO / "mkdocs.yml"), "-d", str(site)], cwd=REPO, capture_output=True, text=True,
+                            env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+    assert result.returncode == 0, result.stderr[-3000:]
+    return site
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    return build_site(tmp_path_factory)
+
+
+def broken_links(page: Path, hrefs: list[str], site: Path) -> list[str]:
+    """The hrefs of a page that point into the site at a missing file or a missing anchor."""
+    broken = []
+    for href in hrefs:
+        parts = urlsplit(href)
+        if parts.scheme != "file":
+            continue  # the outside world is not checked (no network in tests)
+        target = Path(unquote(parts.path))
+        if target.is_dir():
+            target = target / "index.html"
+        if not target.is_file() or site.resolve() not in target.resolve().parents:
+            broken.append(href)
+        elif parts.fragment and target.suffix == ".html":
+            ids = set(re.findall(r'\bid="([^"]+)"', target.read_text(encoding="utf-8")))
+            if unquote(parts.fragment) not in ids:
+                broken.append(href)
+    return broken
+
+
+def test_the_api_reference_is_rendered_from_the_docstrings(site):
+    api = (site / "reference" / "api.html").read_text()
+    for name in ("scene", "render", "verify", "export"):  # one call per command, with its docstring
+        assert f'id="rgbd2scene.api.{name}"' in api
+    assert "one call per command" in api  # the module docstring itself
+
+
+@pytest.mark.skipif(chromium() is None, reason="chromium is not installed (make test installs Debian's)")
+def test_every_page_loads_with_every_link_and_image(site):
+    pages = sorted(p for p in site.rglob("*.html") if p.name != "404.html")
+    sources = sorted((REPO / "docs").rglob("*.md"))
+    assert len(pages) == len(sources)  # every page of docs/ is built (and nothing else)
+    with Browser(chromium()) as browser:
+        for page in pages:
+            browser.open(page)
+            name = page.relative_to(site)
+            assert browser.evaluate("document.querySelector('article h1') !== null"), f"{name}: no title"
+            assert browser.evaluate("document.querySelector('article').innerText.length") > 200, name
+            assert [i["src"] for i in browser.images() if not i["loaded"]] == [], name
+            assert broken_links(page, browser.evaluate(LINKS), site) == [], name
+
+        # the check fails where an image or a link does not resolve
+        page = site / "getting-started.html"
+        browser.open(page)
+        broken = '<img src="missing.png"><a href="missing.html">x</a><a href="index.html#nowhere">y</a>'
+        browser.evaluate(f"document.querySelector('article').insertAdjacentHTML('beforeend', '{broken}')")
+        assert [i["src"] for i in browser.images() if not i["loaded"]] == ["missing.png"]
+        assert [Path(urlsplit(h).path).name + "#" * bool(urlsplit(h).fragment)
+                for h in broken_links(page, browser.evaluate(LINKS), site)] == ["missing.html", "index.html#"]
+
+
+TESTED = re.compile(r"<!-- tested -->\n```(bash|python)\n(.*?)```", re.S)
+TINY = [(re.compile(r"--size \d+x\d+"), "--size 64x32"),  # tiny renders: the commands are what is tested
+        (re.compile(r"(rgbd2scene render .*)--frames \d+"), r"\1--frames 2")]
+
+
+def marked_blocks(page: Path) -> list[tuple[str, str]]:
+    """The (language, code) of a page's blocks marked ``<!-- tested -->``, at tiny sizes."""
+    blocks = []
+    for language, code in TESTED.findall(page.read_text()):
+        for pattern, tiny in TINY:
+            code = pattern.sub(tiny, code)
+        blocks.append((language, code))
+    return blocks
+
+
+TUTORIALS = sorted((REPO / "docs" / "tutorials").glob("*.md"))
+
+
+@pytest.mark.parametrize("page", TUTORIALS, ids=[p.stem for p in TUTORIALS])
+def test_tutorial_code_runs_as_written(page, tmp_path):
+    blocks = marked_blocks(page)
+    assert blocks, f"{page.name}: no block marked <!-- tested -->"
+    (tmp_path / "data_samples").symlink_to(REPO / "data_samples")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+    command = f'rgbd2scene() {{ "{sys.executable}" -m rgbd2scene.cli "$@"; }}\nset -euo pipefail\n'
+    for language, code in blocks:
+        run = (["bash", "-c", command + code] if language == "bash" else [sys.executable, "-c", code])
+        result = subprocess.run(run, cwd=tmp_path, env=env, capture_output=True, text=True)
+        assert result.returncode == 0, f"{page.name}:\n{code}\n{result.stderr[-3000:]}"
+    if page.stem == "rgbd-capture":  # what the page shows was written
+        assert (tmp_path / "out" / "scene" / "overview.png").is_file()
+        assert len(list((tmp_path / "out" / "dataset" / "left" / "gt").glob("*.npz"))) == 2
+        assert json.loads((tmp_path / "out" / "verify.json").read_text())["ok"] is True
+
+
+def test_marked_blocks_get_tiny_sizes():
+    page = REPO / "docs" / "tutorials" / "rgbd-capture.md"
+    render = [code for _, code in marked_blocks(page) if "rgbd2scene render" in code]
+    assert render and all("--size 64x32" in c and "--frames 2" in c for c in render)
