@@ -3,6 +3,7 @@ every internal link and image resolving (the site is built as `make docs` builds
 
 from __future__ import annotations
 
+import html
 import json
 import os
 import re
@@ -123,3 +124,28 @@ def test_marked_blocks_get_tiny_sizes():
     page = REPO / "docs" / "tutorials" / "rgbd-capture.md"
     render = [code for _, code in marked_blocks(page) if "rgbd2scene render" in code]
     assert render and all("--size 64x32" in c and "--frames 2" in c for c in render)
+
+
+def page_text(path: Path) -> str:
+    """The text of a built page, tags stripped and whitespace collapsed."""
+    return " ".join(html.unescape(re.sub(r"<[^>]+>", " ", path.read_text(encoding="utf-8"))).split())
+
+
+def test_figures_page_is_built_from_every_results_file(site, tmp_path):
+    sys.path.insert(0, str(REPO / "docs"))
+    try:
+        import hooks
+    finally:
+        sys.path.remove(str(REPO / "docs"))
+    results = sorted(p.name for p in (REPO / "benchmarks" / "results").glob("*.md"))
+    assert sorted(hooks.MARKER.findall((REPO / "docs" / "figures.md").read_text())) == results
+    text = page_text(site / "figures.html")
+    for name in results:  # every results file's table rows are on the page, as the file has them now
+        rows = [line for line in (REPO / "benchmarks" / "results" / name).read_text().splitlines()
+                if line.startswith("| ") and "---" not in line]
+        assert rows, name
+        for row in rows[:1] + rows[-1:]:
+            cells = [" ".join(re.sub(r"[`*]", "", c).split()) for c in row.strip("|").split("|")]
+            assert " ".join(c for c in cells if c) in text, f"{name}: {row}"
+    with pytest.raises(FileNotFoundError, match="nowhere.md"):
+        hooks.figures_markdown("{{ results nowhere.md }}", tmp_path)
