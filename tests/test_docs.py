@@ -150,3 +150,12 @@ def test_every_python_block_compiles_and_its_imports_of_this_package_resolve():
             imported = importlib.import_module(module)
             for name in (n.strip() for n in names.split(",")):  # an attribute, or a submodule
                 assert hasattr(imported, name) or importlib.util.find_spec(f"{module}.{name}"), (page.name, name)
+
+
+def test_the_dataset_format_page_lists_every_key_of_the_schema_with_its_dtype():
+    from rgbd2scene.groundtruth.schema import SCHEMA
+
+    page = (REPO / "docs" / "dataset-format.md").read_text()
+    rows = {m.group(1): m.group(2) for m in re.finditer(r"^\| `(\w+)` \| (\w+) ", page, re.M)}
+    assert set(rows) == set(SCHEMA)  # no key missing, none that the program does not write
+    assert {key: rows[key] for key in SCHEMA} == {key: field.dtype for key, field in SCHEMA.items()}
