@@ -30,3 +30,19 @@ def figures_markdown(markdown: str, results: Path = RESULTS) -> str:
 
 def on_page_markdown(markdown, page, **_):
     return figures_markdown(markdown) if page.file.src_uri == "figures.md" else markdown
+
+
+SPHINX_ROLE = re.compile(r":(?:py:)?(?:func|class|meth|mod|attr|data|exc|obj|const):<code>(~?)([^<]*?)</code>")
+
+
+def plain_sphinx_roles(html: str) -> str:
+    """The docstrings' Sphinx roles (``:func:`x```, ``:class:`~a.b.C```) as plain code, as Sphinx shows them
+    (``~`` keeps the last name), and a paragraph's closing ``::`` as one colon."""
+    def code(m):
+        return f"<code>{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}</code>"
+
+    return re.sub(r"::</p>", ":</p>", SPHINX_ROLE.sub(code, html))
+
+
+def on_page_content(html, page, **_):
+    return plain_sphinx_roles(html) if page.file.src_uri.startswith("reference/") else html

@@ -66,6 +66,7 @@ def test_the_api_reference_is_rendered_from_the_docstrings(site):
     for name in ("scene", "render", "verify", "export"):  # one call per command, with its docstring
         assert f'id="rgbd2scene.api.{name}"' in api
     assert "one call per command" in api  # the module docstring itself
+    assert ":func:" not in page_text(site / "reference" / "api.html")  # Sphinx roles shown as code (docs/hooks.py)
 
 
 @pytest.mark.skipif(chromium() is None, reason="chromium is not installed (make test installs Debian's)")
