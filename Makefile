@@ -74,7 +74,7 @@ bench: install
 	$(BIN)/python benchmarks/run_all.py
 
 lint: install
-	$(BIN)/ruff check rgbd2scene render tests benchmarks data_samples
+	$(BIN)/ruff check rgbd2scene render tests benchmarks data_samples docs
 
 # Regenerate the bundled sample (deterministic, seeded).
 sample: install

@@ -31,12 +31,12 @@ def top_view(img):
     cv2.polylines(img, [np.stack([xs, zs], 1).astype(np.int32)], False, (90, 120, 200), 3, cv2.LINE_AA)
     text(img, "tissue (mesh = back-projected capture)", (120, 70), (90, 120, 200))
     capture, left, right = (60, 335), (190, 300), (250, 300)
-    for (x, y), name, colour in ((capture, "world = capture camera (frame 0)", GREY), (left, "left eye", RED),
-                                 (right, "right eye", BLUE)):
+    for (x, y), name, colour, at in ((capture, "world = capture camera (frame 0)", GREY, (-40, 30)),
+                                     (left, "left eye", RED, (-60, 25)), (right, "right eye", BLUE, (-20, 25))):
         cv2.circle(img, (x, y), 5, colour, -1, cv2.LINE_AA)
         arrow(img, (x, y), (x + 45, y), colour, "x")
         arrow(img, (x, y), (x, y - 45), colour, "z")
-        text(img, name, (x - 20, y + 25) if name == "right eye" else (x - 60, y + 25) if name == "left eye" else (x - 40, y + 30), colour)
+        text(img, name, (x + at[0], y + at[1]), colour)
     for eye in (left, right):  # each eye's ray to one surface point
         cv2.line(img, eye, (220, 110 + int(18 * np.sin(220 / 40.0))), (120, 120, 120), 1, cv2.LINE_AA)
     cv2.line(img, (190, 285), (250, 285), INK, 1, cv2.LINE_AA)

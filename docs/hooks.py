@@ -1,7 +1,7 @@
 """mkdocs hook: the figures page is built from benchmarks/results/*.md at every build, so it cannot rot.
 
 docs/figures.md holds one line ``{{ results NAME.md }}`` per results file; the hook puts the file there with its
-headings one level down and its source named. A results file that is missing is a build error.
+headings two levels down and its source named. A results file that is missing is a build error.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ MARKER = re.compile(r"^\{\{ results ([\w.-]+\.md) \}\}$", re.M)
 
 
 def results_section(name: str, results: Path = RESULTS) -> str:
-    """One results file as a section of the figures page: headings demoted by one level, its path named."""
+    """One results file as a section of the figures page: headings demoted by two levels, its path named."""
     path = results / name
     if not path.is_file():
         raise FileNotFoundError(f"docs/figures.md: no {path}")
-    text = re.sub(r"^(#+) ", r"#\1 ", path.read_text(encoding="utf-8"), flags=re.M)
+    text = re.sub(r"^(#+) ", r"##\1 ", path.read_text(encoding="utf-8"), flags=re.M)  # under the page's sections
     heading, _, body = text.partition("\n")
     return f"{heading}\n\n*From `benchmarks/results/{name}`.*\n{body}"
 
