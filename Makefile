@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DEMO_OUT ?= demo_out
 SHELL := /bin/bash
 
-.PHONY: install system-deps elas test demo bench lint sample clean
+.PHONY: install system-deps elas test demo bench lint sample docs docs-figures clean
 
 install: $(STAMP)
 
@@ -69,15 +69,26 @@ demo: install
 	@echo "  twin/realism/realism.png (the capture's digital twin beside the captured image: real, render,"
 	@echo "            difference, spectra) and realism.md"
 
+# The documentation site (mkdocs-material, API reference by mkdocstrings) into site/, warnings as errors;
+# tests/test_docs.py builds it the same way and checks every page in headless Chromium.
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --quiet -d site
+	@echo "documentation in site/index.html"
+
+# The site's pictures (committed): the frames drawing, and the tutorials' pictures made by the real program.
+docs-figures: install
+	$(BIN)/python docs/gen_frames.py
+	$(BIN)/python docs/gen_figures.py
+
 bench: install
 	$(BIN)/python benchmarks/run_all.py
 
 lint: install
-	$(BIN)/ruff check rgbd2scene render tests benchmarks data_samples
+	$(BIN)/ruff check rgbd2scene render tests benchmarks data_samples docs
 
 # Regenerate the bundled sample (deterministic, seeded).
 sample: install
 	$(BIN)/python data_samples/make_tissue_sample.py data_samples/tissue
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) bench_out .pytest_cache
+	rm -rf $(VENV) $(DEMO_OUT) bench_out site .pytest_cache
