@@ -60,19 +60,19 @@ from rgbd2scene.dataset import layout as ds
 from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
+from rgbd2scene.rendering import DENOISERS, GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import raw_render_plan
 from rgbd2scene.sensor.develop_frames import FrameDeveloper
 from rgbd2scene.stages.blender import Task, frame_line, ready_line
-from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
+from rgbd2scene.stages.render import RenderOptions
 
 GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
 #: Pass name in the EXR channel names (``<ViewLayer>.<pass>.<channel>``) -> our pass key.
 EXR_PASSES = {"depth": ("Depth", "Z"), "normal": ("Normal", "XYZ"), "vector": ("Vector", "XYZW"),
               "index": ("Object Index", "X"), "combined": ("Combined", "RGB")}
-DENOISERS = {"none": None, "oidn": "OPENIMAGEDENOISE", "optix": "OPTIX"}
 #: How far (matrix entries, metres for translations) the blend's keyed camera may be from the model's pose:
 #: Blender keys in float32 (measured 4e-7).
 POSE_TOLERANCE = 1e-5
@@ -191,6 +191,7 @@ class Renderer:
         self.samples, self.adaptive, self.seed = options.samples, options.adaptive, options.seed
         self.persistent_data = bool(options.persistent_data)
         self.denoiser = DENOISERS[options.denoise]
+        self.prefilter = options.prefilter.upper()
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
         self.maps = options.maps
@@ -257,14 +258,16 @@ class Renderer:
         _apply([(sc.render, "use_persistent_data", self.persistent_data),
                 (cy, "samples", self.samples), (cy, "use_adaptive_sampling", self.adaptive),
                 (cy, "filter_width", self.rgb_filter_width), (cy, "max_bounces", self.rgb_max_bounces),
-                (cy, "use_denoising", self.denoiser is not None), (cy, "seed", self.seed),
+                (cy, "use_denoising", self.denoiser.blender is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
                 (vl, "material_override", None), (vl, "use_pass_combined", True),
                 # Depth only for environment effects (ray lengths through smoke)
                 (vl, "use_pass_z", self.developer.needs_depth), (vl, "use_pass_normal", False),
                 (vl, "use_pass_vector", False), (vl, "use_pass_object_index", False)])
-        if self.denoiser:
-            _apply([(cy, "denoiser", self.denoiser)])
+        if self.denoiser.blender:
+            _apply([(cy, "denoiser", self.denoiser.blender)])
+        if self.denoiser.prefilter:
+            _apply([(cy, "denoising_prefilter", self.prefilter)])
         _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
         blur, focus = self.sensor.motion_blur, self.sensor.focus_distance
         _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])

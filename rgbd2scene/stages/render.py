@@ -14,6 +14,8 @@ import hashlib
 import json
 import os
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -27,6 +29,7 @@ from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.files.atomic import ensure_output_dir, read_json_object
 from rgbd2scene.groundtruth.passes import parse_maps
 from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
+from rgbd2scene.rendering import DENOISERS, GT_RENDER, PREFILTERS
 from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import rectified_rig
@@ -35,20 +38,14 @@ from rgbd2scene.sensor import SensorOptions
 from rgbd2scene.stages.blender import Event, Task, run_task
 from rgbd2scene.versions import software_versions
 
-DENOISERS = ("none", "oidn", "optix")
 DEVICES = ("CPU", "GPU")
 GT_SOURCES = ("model", "blender")
 #: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise beats 16 undenoised samples against a
 #: 256-sample reference in about 0.3 of the time (benchmarks/results/render.md).
 DEFAULT_SAMPLES = 1
 DEFAULT_DENOISE = "oidn"
+DEFAULT_PREFILTER = "fast"
 DEFAULT_CHUNK = 25
-#: The data render of the ground truth (render/frames.py implements it; recorded in dataset.json).
-#: One sample through the pixel centre (a pixel filter this narrow keeps it there), no bounces.
-GT_SAMPLES, GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES = 1, 0.01, 0
-GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_bounces": GT_MAX_BOUNCES,
-             "material_override": "black emission", "passes": ["Depth", "Normal", "Vector", "IndexOB"],
-             "exr": "32-bit float, multilayer", "persistent_data": False}
 #: How the scene model gives the ground truth (groundtruth/model_maps.py; recorded in dataset.json).
 GT_MODEL = {"source": "scene model", "ray_caster": "Open3D RaycastingScene (float32), one ray per pixel centre "
             "of each eye's camera", "normals": "interpolated angle-weighted vertex normals",
@@ -59,6 +56,8 @@ RESUME_KEYS = ("width", "height", "frames", "baseline", "K")
 #: Share of a frame's progress-bar step given when its images are written (the data render that
 #: completes it takes the rest: about a tenth of the time).
 RGB_SHARE = 0.9
+#: Frames ``render --gt-only`` computes at once (threads).
+GT_ONLY_THREADS = 2
 
 
 #: Memory one pixel of a stereo frame takes while rendering: Cycles' float buffers of both views (combined,
@@ -105,6 +104,8 @@ class RenderOptions:
     adaptive: bool = option(True, "turn off adaptive sampling", resume=True)
     denoise: str = option(DEFAULT_DENOISE, "denoiser: none, oidn, optix (the ground truth never sees it)",
                           resume=True)
+    prefilter: str = option(DEFAULT_PREFILTER, "oidn: how its albedo and normal guides are cleaned: fast, accurate "
+                            "(Blender's default, about 4x the cost) or none", choices=PREFILTERS, resume=True)
     device: str = option("CPU", "CPU or GPU")
     threads: int = option(0, "render threads (0: all cores)")
     chunk: int = option(DEFAULT_CHUNK, "frames per worker process (Blender grows in memory over long renders)")
@@ -485,11 +486,16 @@ def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     model = ModelGroundTruth.of_scene(description, scene_dir, n, options.maps)
     bar = _progress_bar(e - s, progress)
     try:
-        with ds.scratch_dir(out) as scratch:
+        # frames in parallel: the ray caster is thread safe (SceneGeometry locks its caches) and much of a
+        # frame's time is numpy and zlib, which release the GIL; each frame's bytes are its own
+        with ds.scratch_dir(out) as scratch, ThreadPoolExecutor(max_workers=GT_ONLY_THREADS) as pool:
+            pending = deque()
             for index in range(s, e):
-                model.write(out, index, scratch)
-                if bar is not None:
-                    bar.update(1)
+                pending.append(pool.submit(model.write, out, index, scratch))
+                while len(pending) > GT_ONLY_THREADS or (index == e - 1 and pending):
+                    pending.popleft().result()
+                    if bar is not None:
+                        bar.update(1)
     finally:
         if bar is not None:
             bar.close()
