@@ -60,13 +60,20 @@ from rgbd2scene.dataset import layout as ds
 from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
-from rgbd2scene.rendering import DENOISERS, GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES
+from rgbd2scene.rendering import (
+    DENOISERS,
+    ENGINES,
+    GT_FILTER_WIDTH_PX,
+    GT_MAX_BOUNCES,
+    GT_SAMPLES,
+    Engine,
+    RenderOptions,
+)
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import raw_render_plan
 from rgbd2scene.sensor.develop_frames import FrameDeveloper
-from rgbd2scene.stages.blender import Task, frame_line, ready_line
-from rgbd2scene.stages.render import RenderOptions
+from rgbd2scene.worker_protocol import Render, frame_line, ready_line
 
 GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
@@ -97,15 +104,14 @@ class ViewMask:
 
 # --- Blender set-up --------------------------------------------------------------------------------------
 
-def _set_device(bpy, scene, device: str) -> str:
-    device = device.upper()
-    if device == "CPU":
+def _set_engine(bpy, scene, engine: Engine) -> str:
+    """Render with ``engine`` (on its first GPU back-end that finds a device); returns the device in words."""
+    scene.render.engine = engine.blender
+    if not engine.gpu:
         scene.cycles.device = "CPU"
         return "CPU"
-    if device != "GPU":
-        raise WorkerError(f"--device must be CPU or GPU, got {device!r}")
     prefs = bpy.context.preferences.addons["cycles"].preferences
-    for kind in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+    for kind in engine.backends:
         try:
             prefs.compute_device_type = kind
         except TypeError:
@@ -117,7 +123,7 @@ def _set_device(bpy, scene, device: str) -> str:
                 d.use = d.type == kind
             scene.cycles.device = "GPU"
             return f"GPU ({kind}: {', '.join(d.name for d in gpus)})"
-    raise WorkerError("--device GPU: Cycles found no GPU (OptiX, CUDA, HIP, oneAPI or Metal)")
+    raise WorkerError(f"--engine {engine.name}: Cycles found no GPU ({', '.join(engine.backends)})")
 
 
 def _gt_material(bpy):
@@ -170,7 +176,6 @@ class Renderer:
         for view in scene.render.views:
             view.use = view.name in VIEWS
 
-        scene.render.engine = "CYCLES"
         scene.render.use_motion_blur = False  # the Vector pass needs it off
         scene.render.use_file_extension = True
         # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the BVH
@@ -184,7 +189,7 @@ class Renderer:
             if attr.startswith("use_stamp"):
                 setattr(scene.render, attr, False)
         scene.render.image_settings.views_format = "INDIVIDUAL"
-        self.device = _set_device(bpy, scene, options.device)
+        self.device = _set_engine(bpy, scene, ENGINES[options.engine])
         if options.threads and options.threads > 0:
             scene.render.threads_mode = "FIXED"
             scene.render.threads = int(options.threads)
@@ -535,7 +540,7 @@ def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: 
     return spent
 
 
-def render_task(bpy, task: Task, say) -> None:
+def render_task(bpy, task: Render, say) -> None:
     """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
     t0 = time.perf_counter()
     scene_dir, out_dir = Path(task.scene_dir), Path(task.dataset_dir)
