@@ -20,6 +20,9 @@ The scene is ``bench_render.py``'s (``rgbd2scene scene`` on ``data_samples/tissu
    same blend: no exact ground truth, no sensor model). Wall times of the whole runs (process start
    included), alternating. The quality of each setting against the 256-sample reference is
    ``bench_render.py``'s quality sweep on the same scene (``benchmarks/results/render.md``).
+4. **Memory of one worker** (``memory``): ``--memory-frames`` frames at 64x32 with all ground truth in one
+   worker (one chunk), its resident memory at every progress line: whether one process could render far more
+   frames than a chunk (the issue's target: flat over 1,000 frames).
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.scene.folder import SCENE_BLEND  # noqa: E402
 from rgbd2scene.stages.render import render_dataset, render_gt_only  # noqa: E402
 
-SECTIONS = ("gt", "gt_only", "visionblender")
+SECTIONS = ("gt", "gt_only", "visionblender", "memory")
 WORK = ROOT / "bench_out" / "issue16"
 GT_TARGET, GT_ONLY_TARGET_S, SPEEDUP_TARGET = 1.05, 0.1, 6.0
 VB_FRAMES, VB_SAMPLES = 10, 16
@@ -150,12 +153,28 @@ def vb_section(scene: Path, repeats: int) -> tuple[str, dict]:
     return text, {"default_s": a, "visionblender_s": b, "speedup": b / a}
 
 
+def memory_section(scene: Path, frames: int) -> tuple[str, dict]:
+    import numpy as np
+
+    run = br.run_worker(scene, WORK / "memory", br.default_setting(), 0, frames, br.PATH_FRAMES, "all", (64, 32))
+    rss = np.array(run.rss_trace)
+    half = len(rss) // 2
+    slope = float(np.polyfit(np.arange(half, len(rss)), rss[half:], 1)[0]) if len(rss) - half > 1 else 0.0
+    text = (f"One worker, {frames} frames at 64x32, RGB + all ground truth ({br.default_setting().label}): RSS "
+            f"{rss[0]:.0f} MB after the first frame, {rss[half]:.0f} MB at frame {half}, {rss[-1]:.0f} MB at the "
+            f"end, peak {run.peak_rss_mb:.0f} MB; growth over the second half **{slope * 1000:+.0f} MB per 1,000 "
+            f"frames**; {run.wall_s:.0f} s in all.")
+    return text, {"rss_first": float(rss[0]), "rss_last": float(rss[-1]), "mb_per_1000_frames": slope * 1000,
+                  "peak": run.peak_rss_mb}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sections", nargs="+", choices=SECTIONS, default=list(SECTIONS))
     ap.add_argument("--long-frames", type=int, default=20, help="frames of the 512x256 GT comparison (issue: 100)")
     ap.add_argument("--gt-only-frames", type=int, default=20)
     ap.add_argument("--vb-repeats", type=int, default=1)
+    ap.add_argument("--memory-frames", type=int, default=br.PATH_FRAMES)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "issue16.md"))
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
@@ -184,6 +203,11 @@ def main(argv: list[str] | None = None) -> int:
         text, record["visionblender"] = vb_section(scene, args.vb_repeats)
         print(text, flush=True)
         parts += ["", "## 3. Default vs VisionBlender-style (10 stereo frames, 512x256)", "", text]
+    if "memory" in args.sections:
+        print("4. memory of one worker", flush=True)
+        text, record["memory"] = memory_section(scene, args.memory_frames)
+        print(text, flush=True)
+        parts += ["", "## 4. Memory of one worker (64x32)", "", text]
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").is_file() else []
     parts += ["", f"Load average at the end {' '.join(load)}; benchmark wall time {time.perf_counter() - t0:.0f} s."]
     if args.out:
