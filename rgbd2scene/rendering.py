@@ -73,7 +73,7 @@ DENOISERS = {d.name: d for d in (Denoiser("none", None), Denoiser("oidn", "OPENI
                                  Denoiser("optix", "OPTIX"))}
 #: OpenImageDenoise's guide prefilter (Cycles' ``denoising_prefilter``, lower case): ``accurate`` denoises the
 #: albedo and normal guides apart (Blender's default, ~80 % of the denoiser's CPU time), ``fast`` filters them in
-#: the same pass, ``none`` takes them as they are (benchmarks/results/render.md, section 6).
+#: the same pass, ``none`` takes them as they are (benchmarks/results/profile.md; render.md, section 7).
 PREFILTERS = ("fast", "accurate", "none")
 
 #: The data render of Blender's ground-truth passes (``--gt-source blender``; recorded in dataset.json): one
@@ -84,8 +84,10 @@ GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_
              "exr": "32-bit float, multilayer", "persistent_data": False}
 
 GT_SOURCES = ("model", "blender")
-#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise beats 16 undenoised samples against a
-#: 256-sample reference in about 0.3 of the time (benchmarks/results/render.md).
+#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise, its guides prefiltered ``fast``: the
+#: cheapest point of the quality sweep on the baked scene (35.4 dB / SSIM 0.943 against 256 samples, about a
+#: third of the cost of the ``accurate`` prefilter for 0.5 dB; no affordable setting reaches 40 dB / 0.97:
+#: benchmarks/results/render.md, section 7).
 DEFAULT_SAMPLES = 1
 DEFAULT_DENOISE = "oidn"
 DEFAULT_PREFILTER = "fast"
