@@ -150,6 +150,11 @@ class Renderer:
         self.out_dir = out_dir
         self.description = description
         self.frames = int(frames)
+        # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check).
+        # The model (open3d, the parts' geometry) loads in a thread meanwhile: it overlaps Blender's first render
+        self.from_model = bool(options.maps) and options.gt_source == "model"
+        self._model_gt = (ThreadPoolExecutor(max_workers=1).submit(
+            ModelGroundTruth.of_scene, description, scene_dir, self.frames, options.maps) if self.from_model else None)
         blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
@@ -208,8 +213,6 @@ class Renderer:
                                         description.path.fps, rendered.K,
                                         lens=None if self.raw is None else self.raw.resample)
         self.passes = passes_needed(self.maps)
-        # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check)
-        self.from_model = bool(self.maps) and options.gt_source == "model"
         self.gt_material = _gt_material(bpy) if self.maps and not self.from_model else None
         self.view_layer = scene.view_layers[0]
         for layer in scene.view_layers[1:]:
@@ -221,11 +224,14 @@ class Renderer:
         # culling needs the parts' geometry files (a scene folder may hold only its .blend: rendered whole)
         cull = bool(options.view_culling) and all((Path(scene_dir) / p.geometry).is_file()
                                                   for _, p in description.parts())
-        need_geometry = self.maps and (self.moving or cull or self.from_model)
+        need_geometry = self.maps and (self.moving or cull) and not self.from_model
         self.geometry = SceneGeometry(description, scene_dir) if need_geometry else None
-        self.model_gt = (ModelGroundTruth(self.geometry, description, self.frames, self.maps) if self.from_model
-                         else None)
         self.view_masks = self._add_view_masks() if self.maps and cull and not self.from_model else []
+
+    @property
+    def model_gt(self) -> ModelGroundTruth | None:
+        """The scene model's ground truth (waits for it to load), None with ``--gt-source blender``."""
+        return None if self._model_gt is None else self._model_gt.result()
 
     def _add_view_masks(self) -> list[ViewMask]:
         """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group
@@ -495,7 +501,7 @@ def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: 
     With ground truth from the scene model (:class:`~rgbd2scene.groundtruth.model_maps.ModelGroundTruth`, no
     data render) another thread computes and writes frame i's maps meanwhile, and a frame is done when both
     are. Returns the (wall, CPU) seconds of the frames a data render still has to finish (Blender's passes)."""
-    model = renderer.model_gt is not None
+    model = renderer.from_model
     spent: dict[int, tuple[float, float]] = {}
 
     def write_gt(index: int) -> None:
@@ -558,7 +564,7 @@ def render_task(bpy, task: Render, say) -> None:
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
         spent = _rgb_phase(renderer, out_dir, need_rgb, need_gt, say, scratch)
-        if renderer.model_gt is not None:
+        if renderer.from_model:
             return
         # Blender's passes (--gt-source blender, the cross-check of the model's maps): every data render after
         # every RGB render of the chunk. Switching between the two configurations makes Cycles rebuild its
