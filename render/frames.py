@@ -61,18 +61,25 @@ from rgbd2scene.dataset.develop_frames import FrameDeveloper
 from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
+from rgbd2scene.rendering import (
+    DENOISERS,
+    ENGINES,
+    GT_FILTER_WIDTH_PX,
+    GT_MAX_BOUNCES,
+    GT_SAMPLES,
+    Engine,
+    RenderOptions,
+)
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import raw_render_plan
-from rgbd2scene.stages.blender import Task, frame_line, ready_line
-from rgbd2scene.stages.render import GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES, GT_SAMPLES, RenderOptions
+from rgbd2scene.worker_protocol import Render, frame_line, ready_line
 
 GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
 #: Pass name in the EXR channel names (``<ViewLayer>.<pass>.<channel>``) -> our pass key.
 EXR_PASSES = {"depth": ("Depth", "Z"), "normal": ("Normal", "XYZ"), "vector": ("Vector", "XYZW"),
               "index": ("Object Index", "X"), "combined": ("Combined", "RGB")}
-DENOISERS = {"none": None, "oidn": "OPENIMAGEDENOISE", "optix": "OPTIX"}
 #: How far (matrix entries, metres for translations) the blend's keyed camera may be from the model's pose:
 #: Blender keys in float32 (measured 4e-7).
 POSE_TOLERANCE = 1e-5
@@ -97,15 +104,14 @@ class ViewMask:
 
 # --- Blender set-up --------------------------------------------------------------------------------------
 
-def _set_device(bpy, scene, device: str) -> str:
-    device = device.upper()
-    if device == "CPU":
+def _set_engine(bpy, scene, engine: Engine) -> str:
+    """Render with ``engine`` (on its first GPU back-end that finds a device); returns the device in words."""
+    scene.render.engine = engine.blender
+    if not engine.gpu:
         scene.cycles.device = "CPU"
         return "CPU"
-    if device != "GPU":
-        raise WorkerError(f"--device must be CPU or GPU, got {device!r}")
     prefs = bpy.context.preferences.addons["cycles"].preferences
-    for kind in ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL"):
+    for kind in engine.backends:
         try:
             prefs.compute_device_type = kind
         except TypeError:
@@ -117,7 +123,7 @@ def _set_device(bpy, scene, device: str) -> str:
                 d.use = d.type == kind
             scene.cycles.device = "GPU"
             return f"GPU ({kind}: {', '.join(d.name for d in gpus)})"
-    raise WorkerError("--device GPU: Cycles found no GPU (OptiX, CUDA, HIP, oneAPI or Metal)")
+    raise WorkerError(f"--engine {engine.name}: Cycles found no GPU ({', '.join(engine.backends)})")
 
 
 def _gt_material(bpy):
@@ -144,6 +150,11 @@ class Renderer:
         self.out_dir = out_dir
         self.description = description
         self.frames = int(frames)
+        # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check).
+        # The model (open3d, the parts' geometry) loads in a thread meanwhile: it overlaps Blender's first render
+        self.from_model = bool(options.maps) and options.gt_source == "model"
+        self._model_gt = (ThreadPoolExecutor(max_workers=1).submit(
+            ModelGroundTruth.of_scene, description, scene_dir, self.frames, options.maps) if self.from_model else None)
         blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
@@ -170,7 +181,6 @@ class Renderer:
         for view in scene.render.views:
             view.use = view.name in VIEWS
 
-        scene.render.engine = "CYCLES"
         scene.render.use_motion_blur = False  # the Vector pass needs it off
         scene.render.use_file_extension = True
         # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the BVH
@@ -184,13 +194,14 @@ class Renderer:
             if attr.startswith("use_stamp"):
                 setattr(scene.render, attr, False)
         scene.render.image_settings.views_format = "INDIVIDUAL"
-        self.device = _set_device(bpy, scene, options.device)
+        self.device = _set_engine(bpy, scene, ENGINES[options.engine])
         if options.threads and options.threads > 0:
             scene.render.threads_mode = "FIXED"
             scene.render.threads = int(options.threads)
         self.samples, self.adaptive, self.seed = options.samples, options.adaptive, options.seed
         self.persistent_data = bool(options.persistent_data)
         self.denoiser = DENOISERS[options.denoise]
+        self.prefilter = options.prefilter.upper()
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
         self.maps = options.maps
@@ -202,8 +213,6 @@ class Renderer:
                                         description.path.fps, rendered.K,
                                         lens=None if self.raw is None else self.raw.resample)
         self.passes = passes_needed(self.maps)
-        # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check)
-        self.from_model = bool(self.maps) and options.gt_source == "model"
         self.gt_material = _gt_material(bpy) if self.maps and not self.from_model else None
         self.view_layer = scene.view_layers[0]
         for layer in scene.view_layers[1:]:
@@ -215,11 +224,14 @@ class Renderer:
         # culling needs the parts' geometry files (a scene folder may hold only its .blend: rendered whole)
         cull = bool(options.view_culling) and all((Path(scene_dir) / p.geometry).is_file()
                                                   for _, p in description.parts())
-        need_geometry = self.maps and (self.moving or cull or self.from_model)
+        need_geometry = self.maps and (self.moving or cull) and not self.from_model
         self.geometry = SceneGeometry(description, scene_dir) if need_geometry else None
-        self.model_gt = (ModelGroundTruth(self.geometry, description, self.frames, self.maps) if self.from_model
-                         else None)
         self.view_masks = self._add_view_masks() if self.maps and cull and not self.from_model else []
+
+    @property
+    def model_gt(self) -> ModelGroundTruth | None:
+        """The scene model's ground truth (waits for it to load), None with ``--gt-source blender``."""
+        return None if self._model_gt is None else self._model_gt.result()
 
     def _add_view_masks(self) -> list[ViewMask]:
         """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group
@@ -257,14 +269,16 @@ class Renderer:
         _apply([(sc.render, "use_persistent_data", self.persistent_data),
                 (cy, "samples", self.samples), (cy, "use_adaptive_sampling", self.adaptive),
                 (cy, "filter_width", self.rgb_filter_width), (cy, "max_bounces", self.rgb_max_bounces),
-                (cy, "use_denoising", self.denoiser is not None), (cy, "seed", self.seed),
+                (cy, "use_denoising", self.denoiser.blender is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
                 (vl, "material_override", None), (vl, "use_pass_combined", True),
                 # Depth only for environment effects (ray lengths through smoke)
                 (vl, "use_pass_z", self.developer.needs_depth), (vl, "use_pass_normal", False),
                 (vl, "use_pass_vector", False), (vl, "use_pass_object_index", False)])
-        if self.denoiser:
-            _apply([(cy, "denoiser", self.denoiser)])
+        if self.denoiser.blender:
+            _apply([(cy, "denoiser", self.denoiser.blender)])
+        if self.denoiser.prefilter:
+            _apply([(cy, "denoising_prefilter", self.prefilter)])
         _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
         blur, focus = self.sensor.motion_blur, self.sensor.focus_distance
         _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])
@@ -487,7 +501,7 @@ def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: 
     With ground truth from the scene model (:class:`~rgbd2scene.groundtruth.model_maps.ModelGroundTruth`, no
     data render) another thread computes and writes frame i's maps meanwhile, and a frame is done when both
     are. Returns the (wall, CPU) seconds of the frames a data render still has to finish (Blender's passes)."""
-    model = renderer.model_gt is not None
+    model = renderer.from_model
     spent: dict[int, tuple[float, float]] = {}
 
     def write_gt(index: int) -> None:
@@ -532,7 +546,7 @@ def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: 
     return spent
 
 
-def render_task(bpy, task: Task, say) -> None:
+def render_task(bpy, task: Render, say) -> None:
     """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
     t0 = time.perf_counter()
     scene_dir, out_dir = Path(task.scene_dir), Path(task.dataset_dir)
@@ -550,7 +564,7 @@ def render_task(bpy, task: Task, say) -> None:
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
         spent = _rgb_phase(renderer, out_dir, need_rgb, need_gt, say, scratch)
-        if renderer.model_gt is not None:
+        if renderer.from_model:
             return
         # Blender's passes (--gt-source blender, the cross-check of the model's maps): every data render after
         # every RGB render of the chunk. Switching between the two configurations makes Cycles rebuild its

@@ -122,7 +122,7 @@ def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
             "assert loaded == ['rgbd2scene.stages.capture', 'rgbd2scene.stages.mesh'], loaded\n"
             "import rgbd2scene.stages as stages\n"
             "for name in stages.__all__:\n"
-            "    assert getattr(stages, name).__module__.startswith('rgbd2scene.stages.'), name\n"
+            "    assert getattr(stages, name).__module__.startswith('rgbd2scene.'), name\n"
             "from rgbd2scene.stages import RenderOptions, build_scene_folder\n"
             "assert not hasattr(stages, 'no_such_name')\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)

@@ -68,7 +68,7 @@ pytest.importorskip("OpenEXR")
 from render.scene_builder import build_scene  # noqa: E402
 from rgbd2scene.cli import main  # noqa: E402
 from rgbd2scene.files.images import write_image  # noqa: E402
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 
@@ -155,7 +155,7 @@ def _scene_folder(folder, detail: TissueDetail):
     poses = [look_at([0.001 * k, 0.0005 * k, 0.01], [0.0015 * k, 0.0, 0.05]) for k in range(3)]
     desc = _description(detail, intr, poses)
     write_scene_files(folder, _relief_mesh(intr), desc)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict()}))
     return folder
 

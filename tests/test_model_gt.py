@@ -29,7 +29,7 @@ from rgbd2scene.scene.rig import StereoRig
 
 pytest.importorskip("bpy")
 
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import render_dataset, render_gt_only  # noqa: E402
 from rgbd2scene.verify import verify_dataset  # noqa: E402
 from rgbd2scene.verify.framework import Tolerances  # noqa: E402
@@ -64,7 +64,7 @@ def _build(folder: Path, rig: StereoRig) -> Path:
                            "motion": {"entry_fraction": 0.0, "trocar_azimuth_deg": 0.0, "hover": 0.008}}]}
     rest = Tissue(mesh.vertices, mesh.triangles, raycaster(mesh.vertices, mesh.triangles))
     desc, record = add_objects(desc, rest, parse_scene_config(config, folder), folder, seed=1)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict(), "objects": record}))
     return folder
 

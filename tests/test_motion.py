@@ -36,7 +36,7 @@ from rgbd2scene.scene.rig import StereoRig
 
 pytest.importorskip("bpy")
 
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
 from rgbd2scene.verify import verify_dataset  # noqa: E402
 
@@ -58,7 +58,7 @@ def _grid(z: float, half: float = 0.05, n: int = 41) -> Mesh:
 
 
 def _build(folder: Path, description: SceneDescription) -> Path:
-    run_task(Task("build_scene", str(folder), description.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), description.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": description.to_dict()}))
     return folder
 

@@ -27,7 +27,7 @@ from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noq
 from rgbd2scene.scene.objects.assemble import Tissue, add_objects  # noqa: E402
 from rgbd2scene.scene.paths import CameraPath  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 
@@ -57,7 +57,7 @@ def _build(folder: Path, config: dict, camera_poses: np.ndarray) -> tuple[Path, 
     write_scene_files(folder, plane, desc)
     tissue = Tissue(plane.vertices, plane.triangles, raycaster(plane.vertices, plane.triangles))
     desc, record = add_objects(desc, tissue, parse_scene_config(config, folder), folder, seed=1)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict(), "objects": record}))
     return folder, desc
 

@@ -27,7 +27,7 @@ from rgbd2scene.sensor import SensorOptions
 
 pytest.importorskip("bpy")
 
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
 from rgbd2scene.verify import verify_dataset  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
@@ -70,7 +70,7 @@ def scene(tmp_path_factory) -> Path:
     desc = SceneDescription(_rig(), CameraPath(_poses(), fps=10.0, kind="test"), Light(),
                             [tissue_object("as_captured")])
     write_scene_files(folder, plane, desc)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict()}))
     return folder
 
@@ -231,7 +231,7 @@ def test_a_lens_folding_inside_the_image_sees_nothing_beyond_the_fold(tmp_path):
     desc = SceneDescription(rig, CameraPath(np.tile(np.eye(4), (2, 1, 1)), fps=10.0, kind="test"), Light(),
                             [tissue_object("as_captured")])
     write_scene_files(folder, plane, desc)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict()}))
     out = tmp_path / "ds"
     render_dataset(folder, out, samples=1, denoise="none", progress=False)

@@ -132,7 +132,7 @@ pytest.importorskip("OpenEXR")
 
 from rgbd2scene.files.meshio import write_ply  # noqa: E402
 from rgbd2scene.geometry.mesh import Mesh  # noqa: E402
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import RenderError, render_dataset  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 
@@ -160,7 +160,7 @@ def _quad(corners, texture_value=128) -> SimpleNamespace:
 def _write_scene(folder: Path, description: SceneDescription, mesh) -> Path:
     """Scene folder of ``description`` with ``mesh`` as the tissue, built by the Blender worker."""
     write_scene_files(folder, mesh, description)
-    run_task(Task("build_scene", str(folder), description.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), description.to_dict(), str(folder / "scene.blend"))))
     record = {"scene": description.to_dict(), "files": {"mesh": "mesh.ply"}, "test": True}
     (folder / "scene.json").write_text(json.dumps(record))
     return folder

@@ -26,7 +26,7 @@ bpy = pytest.importorskip("bpy")
 pytest.importorskip("OpenEXR")
 
 from rgbd2scene.cli import main  # noqa: E402
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 
 FRAMES = 4
@@ -50,7 +50,7 @@ def scene(tmp_path_factory) -> Path:
     desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5), 0.005),
                             CameraPath(poses, fps=25.0, kind="test"), LIGHT, [tissue_object("as_captured")])
     write_scene_files(folder, mesh, desc)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict(), "test": True}))
     return folder
 

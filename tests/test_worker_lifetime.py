@@ -105,7 +105,7 @@ from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.paths import CameraPath  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402
-from rgbd2scene.stages.blender import Task, run_task  # noqa: E402
+from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from tests.conftest import write_scene_files  # noqa: E402
 
 #: A render that runs for minutes at 64x32 (no adaptive stop, no denoiser): long enough to be killed in.
@@ -127,7 +127,7 @@ def quad_scene(tmp_path_factory) -> Path:
                            uvs=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32),
                            vertex_colors=np.full((4, 3), 128, np.uint8), texture=np.full((4, 4, 3), 128, np.uint8))
     write_scene_files(folder, quad, desc)
-    run_task(Task("build_scene", str(folder), desc.to_dict(), blend=str(folder / "scene.blend")))
+    run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))
     (folder / "scene.json").write_text(json.dumps({"scene": desc.to_dict(), "files": {"mesh": "mesh.ply"}}))
     return folder
 

@@ -41,14 +41,12 @@ GEOMETRY_DIR = "geometry"
 REQUIRED_KEYS = ("width", "height", "frames", "fps", "baseline", "K", "objects", "scene", "software", "seed",
                  "conventions_version", "render")
 FORMAT = "rgbd2scene-dataset"
-#: zlib level of the npz files: level 1 compresses ground truth as well as numpy's default (6) to within
-#: 1 % (float maps barely compress) in less than half the time (80 vs 190 ms per 512x256 eye).
+#: zlib level of the npz files' integer and boolean arrays (ids, occlusion flags: they compress to almost
+#: nothing). Float arrays (depth, normals, flow, vertex positions...) are stored: their low mantissa bits are
+#: noise to zlib (depth and disparity shrink to 0.83, flow to 0.86-0.90, normals to 0.91 of their size) and
+#: deflating them took most of the ground truth's time without Blender (0.4 s of 0.75 s per 512x256 eye,
+#: ``render --gt-only``, loaded machine).
 NPZ_COMPRESSLEVEL = 1
-#: Maps stored without compression: unit normals are float noise to zlib (1.57 -> 1.45 MB per 512x256
-#: eye for 40 ms, half the compression time of a frame).
-NPZ_STORED = frozenset({"normals"})
-#: Prefix of DATASET/geometry keys: float vertex positions, stored too (they barely compress either).
-NPZ_STORED_PREFIX = "vertices_"
 #: ZipInfo's compression-level attribute (``_compresslevel`` up to Python 3.12, ``compress_level`` after)
 _LEVEL_SLOT = "compress_level" if "compress_level" in zipfile.ZipInfo.__slots__ else "_compresslevel"
 
@@ -112,19 +110,20 @@ def install_file(src: str | Path, dst: str | Path) -> None:
 def write_gt(path: str | Path, gt: dict, compresslevel: int = NPZ_COMPRESSLEVEL, scratch: Path | None = None) -> None:
     """Ground-truth dict -> compressed npz (a standard one: ``np.load`` reads it), atomically.
 
-    Deflate level ``compresslevel`` except the maps in :data:`NPZ_STORED`; fixed entry dates, so the same
-    arrays give the same bytes.
+    Deflate level ``compresslevel`` for integer and boolean arrays, float arrays stored
+    (:data:`NPZ_COMPRESSLEVEL`); fixed entry dates, so the same arrays give the same bytes.
     """
     with atomic_path(path, suffix=".npz", tmp_dir=scratch) as tmp, zipfile.ZipFile(
             tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=compresslevel) as zf:
         for key, value in gt.items():
+            value = np.asanyarray(value)
             info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
-            stored = key in NPZ_STORED or key.startswith(NPZ_STORED_PREFIX)
+            stored = np.issubdtype(value.dtype, np.floating)
             info.compress_type = zipfile.ZIP_STORED if stored else zipfile.ZIP_DEFLATED
             info.external_attr = 0o644 << 16
             setattr(info, _LEVEL_SLOT, compresslevel)
             with zf.open(info, "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, np.asanyarray(value), allow_pickle=False)
+                np.lib.format.write_array(f, value, allow_pickle=False)
 
 
 def write_frame(root: str | Path, eye: str, index: int, rgb_uint8: np.ndarray | None,

@@ -14,6 +14,8 @@ import hashlib
 import json
 import os
 import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,30 +27,28 @@ from rgbd2scene.dataset.calibration import CALIBRATION_YAML, write_calibration
 from rgbd2scene.environment import EnvironmentOptions
 from rgbd2scene.errors import RenderError, UserError
 from rgbd2scene.files.atomic import ensure_output_dir, read_json_object
-from rgbd2scene.groundtruth.passes import parse_maps
-from rgbd2scene.options import OptionError, flag_of, option, resume_diff, to_record
+from rgbd2scene.options import OptionError, flag_of, resume_diff, to_record
+from rgbd2scene.rendering import (  # noqa: F401 - the stage's options, re-exported
+    BYTES_PER_PIXEL,
+    DEFAULT_CHUNK,
+    DEFAULT_DENOISE,
+    DEFAULT_PREFILTER,
+    DEFAULT_SAMPLES,
+    ENGINES,
+    GT_RENDER,
+    GT_SOURCES,
+    RenderOptions,
+    machine_memory_bytes,
+    parse_size,
+    render_memory_bytes,
+)
 from rgbd2scene.scene.folder import SCENE_BLEND, SCENE_JSON
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import rectified_rig
 from rgbd2scene.scene.rig import StereoRig
-from rgbd2scene.sensor import SensorOptions
-from rgbd2scene.stages.blender import Event, Task, run_task
+from rgbd2scene.stages.blender import Describe, Event, Render, Task, run_task
 from rgbd2scene.versions import software_versions
 
-DENOISERS = ("none", "oidn", "optix")
-DEVICES = ("CPU", "GPU")
-GT_SOURCES = ("model", "blender")
-#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise beats 16 undenoised samples against a
-#: 256-sample reference in about 0.3 of the time (benchmarks/results/render.md).
-DEFAULT_SAMPLES = 1
-DEFAULT_DENOISE = "oidn"
-DEFAULT_CHUNK = 25
-#: The data render of the ground truth (render/frames.py implements it; recorded in dataset.json).
-#: One sample through the pixel centre (a pixel filter this narrow keeps it there), no bounces.
-GT_SAMPLES, GT_FILTER_WIDTH_PX, GT_MAX_BOUNCES = 1, 0.01, 0
-GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_bounces": GT_MAX_BOUNCES,
-             "material_override": "black emission", "passes": ["Depth", "Normal", "Vector", "IndexOB"],
-             "exr": "32-bit float, multilayer", "persistent_data": False}
 #: How the scene model gives the ground truth (groundtruth/model_maps.py; recorded in dataset.json).
 GT_MODEL = {"source": "scene model", "ray_caster": "Open3D RaycastingScene (float32), one ray per pixel centre "
             "of each eye's camera", "normals": "interpolated angle-weighted vertex normals",
@@ -59,111 +59,8 @@ RESUME_KEYS = ("width", "height", "frames", "baseline", "K")
 #: Share of a frame's progress-bar step given when its images are written (the data render that
 #: completes it takes the rest: about a tenth of the time).
 RGB_SHARE = 0.9
-
-
-#: Memory one pixel of a stereo frame takes while rendering: Cycles' float buffers of both views (combined,
-#: denoising albedo and normal, passes) and the ground truth's per-pixel rays, hits and maps, with room to spare.
-BYTES_PER_PIXEL = 600
-
-
-def render_memory_bytes(width: int, height: int) -> int:
-    """An estimate of the memory a render at width x height needs (:data:`BYTES_PER_PIXEL`)."""
-    return int(width) * int(height) * BYTES_PER_PIXEL
-
-
-def machine_memory_bytes() -> int | None:
-    """This machine's physical memory (None where the system does not say)."""
-    try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """``"512x256"`` -> (512, 256); ValueError when it is not two positive integers."""
-    try:
-        w, h = (int(x) for x in str(text).lower().split("x"))
-    except ValueError:
-        raise ValueError(f"size must look like 512x256, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise ValueError(f"size must be positive, got {text!r}")
-    return w, h
-
-
-@dataclass
-class RenderOptions:
-    """Every setting of the render stage (CLI flags, batch keys, the task file and dataset.json's record)."""
-
-    frames: int | None = option(None, "dataset length: the first N frames of the path (default all)")
-    size: tuple[int, int] | None = option(None, "image size WxH (default the scene's; K is rescaled)",
-                                          parse=parse_size, metavar="WxH")
-    gt: str = option("all", "maps: all, none, or a list of depth,disparity,normals,flow,segmentation "
-                     "(default all)", resume=True)
-    start: int | None = option(None, "first frame of this chunk (default 0)")
-    end: int | None = option(None, "end (exclusive) of this chunk (default the last frame)")
-    samples: int = option(DEFAULT_SAMPLES, "RGB samples per pixel", resume=True)
-    adaptive: bool = option(True, "turn off adaptive sampling", resume=True)
-    denoise: str = option(DEFAULT_DENOISE, "denoiser: none, oidn, optix (the ground truth never sees it)",
-                          resume=True)
-    device: str = option("CPU", "CPU or GPU")
-    threads: int = option(0, "render threads (0: all cores)")
-    chunk: int = option(DEFAULT_CHUNK, "frames per worker process (Blender grows in memory over long renders)")
-    seed: int = option(0, "Cycles seed (animated per frame)", resume=True)
-    persistent_data: bool = option(True, "keep Cycles' scene data (BVH) between the renders of a chunk",
-                                   cli=False)
-    gt_source: str = option("model", "where the ground truth comes from: model (ray casting the scene model along "
-                            "each pixel's ray, no data render) or blender (Blender's passes: the independent "
-                            "cross-check; pinhole rectified rigs only)", choices=GT_SOURCES, resume=True)
-    rectify: bool = option(False, "render the rectified pair of a raw scope (distortion or unequal eyes) as "
-                           "cv2.stereoRectify (alpha 0) defines it, with disparity; default: the raw pair, as the "
-                           "scope delivers it, with correspondence", resume=True)
-    gt_only: bool = option(False, "write (or rewrite) only the ground truth of the frames, from the scene model "
-                           "without Blender: regenerates or extends an existing dataset's npz files")
-    view_culling: bool = option(True, "data renders sync only the triangles the frame's eyes see and their "
-                                "neighbours (the same passes, bit for bit; off: the whole scene)", cli=False)
-    sensor: SensorOptions = option(SensorOptions(), "the scope camera's exposure, sensor and optics effects "
-                                   "(RGB only)", resume=True)
-    environment: EnvironmentOptions = option(EnvironmentOptions(), "what fills the space in front of the scope "
-                                             "(RGB only)", resume=True)
-
-    def validated(self) -> RenderOptions:
-        """A normalised copy (map list, upper-case device, lower-case denoiser); :class:`OptionError` if bad."""
-        try:
-            maps = parse_maps(self.gt)
-        except ValueError as exc:
-            raise OptionError("gt", str(exc)) from None
-        denoise = (self.denoise or "none").lower()
-        if denoise not in DENOISERS:
-            raise OptionError("denoise", f"choose one of {', '.join(DENOISERS)}, got {self.denoise!r}")
-        device = str(self.device).upper()
-        if device not in DEVICES:
-            raise OptionError("device", f"choose CPU or GPU, got {self.device!r}")
-        for name in ("samples", "chunk"):
-            if int(getattr(self, name)) < 1:
-                raise OptionError(name, f"must be at least 1, got {getattr(self, name)}")
-        size = None
-        if self.size is not None:
-            size = tuple(int(v) for v in self.size)
-            if len(size) != 2 or min(size) <= 0:
-                raise OptionError("size", f"must be positive, got {'x'.join(map(str, size))}")
-            need, have = render_memory_bytes(*size), machine_memory_bytes()
-            if have and need > have:
-                raise OptionError("size", f"{size[0]}x{size[1]} needs about {need / 2**30:,.0f} GiB to render "
-                                  f"(estimate: {BYTES_PER_PIXEL} bytes per pixel), more than this machine's "
-                                  f"{have / 2**30:.0f} GiB")
-        nested = {}
-        for name, cls in (("sensor", SensorOptions), ("environment", EnvironmentOptions)):
-            value = getattr(self, name)
-            try:
-                nested[name] = (cls.from_dict(value) if isinstance(value, dict) else value).validated()
-            except OptionError as exc:
-                raise OptionError(f"{name}.{exc.name}", exc.message) from None
-        return replace(self, gt=",".join(maps) or "none", denoise=denoise, device=device, size=size,
-                       samples=int(self.samples), chunk=int(self.chunk), seed=int(self.seed), **nested)
-
-    @property
-    def maps(self) -> tuple[str, ...]:
-        return parse_maps(self.gt)
+#: Frames ``render --gt-only`` computes at once (threads).
+GT_ONLY_THREADS = 2
 
 
 def _sha1(path: Path) -> str | None:
@@ -197,7 +94,7 @@ def load_scene(scene_dir: str | Path, python: str | None = None) -> tuple[Path, 
 
 def _describe_from_blend(scene_dir: Path, python: str | None) -> dict:
     try:
-        result = run_task(Task("describe", str(scene_dir.resolve())), python=python, what="describe worker")
+        result = run_task(Task(Describe(str(scene_dir.resolve()))), python=python, what="describe worker")
     except RenderError as exc:
         last = str(exc).strip().splitlines()[-1]
         raise UserError(f"{scene_dir}: scene.json has no 'scene' and scene.blend holds no description "
@@ -293,9 +190,8 @@ def render_task(scene_dir: Path, out_dir: Path, description: SceneDescription, o
                 frames: int, start: int, end: int) -> Task:
     """The worker task that renders frames [start, end) of a ``frames``-long dataset (``description`` as
     rendered, see :func:`render_model`)."""
-    return Task("render", str(Path(scene_dir).resolve()), description.to_dict(),
-                dataset_dir=str(Path(out_dir).resolve()), render=to_record(options), frames=int(frames),
-                start=int(start), end=int(end))
+    return Task(Render(str(Path(scene_dir).resolve()), str(Path(out_dir).resolve()), description.to_dict(),
+                       render=to_record(options), frames=int(frames), start=int(start), end=int(end)))
 
 
 @dataclass
@@ -485,11 +381,16 @@ def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     model = ModelGroundTruth.of_scene(description, scene_dir, n, options.maps)
     bar = _progress_bar(e - s, progress)
     try:
-        with ds.scratch_dir(out) as scratch:
+        # frames in parallel: the ray caster is thread safe (SceneGeometry locks its caches) and much of a
+        # frame's time is numpy and zlib, which release the GIL; each frame's bytes are its own
+        with ds.scratch_dir(out) as scratch, ThreadPoolExecutor(max_workers=GT_ONLY_THREADS) as pool:
+            pending = deque()
             for index in range(s, e):
-                model.write(out, index, scratch)
-                if bar is not None:
-                    bar.update(1)
+                pending.append(pool.submit(model.write, out, index, scratch))
+                while len(pending) > GT_ONLY_THREADS or (index == e - 1 and pending):
+                    pending.popleft().result()
+                    if bar is not None:
+                        bar.update(1)
     finally:
         if bar is not None:
             bar.close()

@@ -35,7 +35,7 @@ from rgbd2scene.scene.paths import (
     path_coverage,
 )
 from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SIZE, StereoRig, read_scope_calibration
-from rgbd2scene.stages.blender import Task, run_task
+from rgbd2scene.stages.blender import BuildScene, Task, run_task
 from rgbd2scene.stages.render import parse_size
 
 #: Scope light power, watts (both outlets): auto exposure then runs the light at full power with gain 1 at
@@ -262,7 +262,7 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
         timings["objects_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     blend = out_dir.resolve() / folder.SCENE_BLEND
-    run_task(Task("build_scene", str(out_dir.resolve()), desc.to_dict(), blend=str(blend)), python=python,
+    run_task(Task(BuildScene(str(out_dir.resolve()), desc.to_dict(), str(blend))), python=python,
              what="scene worker")
     timings["blend_s"] = time.perf_counter() - t0
     record = dict(record)
