@@ -447,6 +447,8 @@ def test_gt_none_writes_only_images(scene_a, tmp_path):
     assert summary["rendered"] == 1
     assert ds.frame_paths(out, "left", 0).rgb.is_file() and ds.frame_paths(out, "right", 0).rgb.is_file()
     assert not (out / "left" / "gt").exists()
+    again = render_dataset(scene_a, out, frames=1, gt="none", samples=1, progress=False)  # resumes: [] is "none"
+    assert again["rendered"] == 0 and again["skipped"] == 1
 
 
 def test_bad_inputs_are_user_errors(scene_a, tmp_path):

@@ -100,13 +100,6 @@ def write_rgb(path: str | Path, rgb_uint8: np.ndarray) -> None:
     write_image(path, rgb)
 
 
-def install_file(src: str | Path, dst: str | Path) -> None:
-    """Move a finished file (e.g. Blender's own PNG) into place by renaming (same file system)."""
-    dst = Path(dst)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(src, dst)
-
-
 def write_gt(path: str | Path, gt: dict, compresslevel: int = NPZ_COMPRESSLEVEL, scratch: Path | None = None) -> None:
     """Ground-truth dict -> compressed npz (a standard one: ``np.load`` reads it), atomically.
 

@@ -154,7 +154,7 @@ def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path
     options, e.g. those of the ground truth)."""
     diffs = [k for k in RESUME_KEYS if existing.get(k) != info[k]]
     old = existing.get("render", {})
-    diffs += [f"render.{k}" for k in resume_diff(options, {**old, "gt": ",".join(old.get("gt", []))})
+    diffs += [f"render.{k}" for k in resume_diff(options, {**old, "gt": ",".join(old.get("gt", [])) or "none"})
               if only is None or k in only]
     if existing.get("scene", {}).get("scene_json_sha1") != info["scene"]["scene_json_sha1"]:
         diffs.append("scene (scene.json changed)")
