@@ -40,3 +40,27 @@ def write_scene_files(folder: Path, mesh, description=None) -> Path:
         tissue = description.objects[0].parts[0]
         tissue.material.texture = names.TEXTURE if texture is not None else None
     return folder
+
+
+def render_base_colour(bpy, material: str, exr: Path) -> np.ndarray:
+    """Linear RGB (H, W, 3) float64 of the open scene's left eye with ``material`` showing its own base colour,
+    unlit (its Principled BSDF's Base Color input wired to an emission): what a material's detail computes,
+    without light or shading. 16 samples, seed 0, written to the multilayer EXR ``exr`` and read back."""
+    import OpenEXR
+
+    nodes, links = bpy.data.materials[material].node_tree.nodes, bpy.data.materials[material].node_tree.links
+    bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
+    emission = nodes.new("ShaderNodeEmission")
+    links.new(bsdf.inputs["Base Color"].links[0].from_socket, emission.inputs["Color"])
+    links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
+    scene = bpy.context.scene
+    scene.render.use_multiview = False
+    scene.cycles.samples, scene.cycles.seed = 16, 0
+    settings = scene.render.image_settings
+    settings.media_type, settings.file_format, settings.color_depth = ("MULTI_LAYER_IMAGE", "OPEN_EXR_MULTILAYER",
+                                                                       "32")
+    scene.render.filepath = str(exr)
+    bpy.ops.render.render(write_still=True)
+    with OpenEXR.File(str(exr), separate_channels=True) as f:
+        channels = {k: np.array(c.pixels) for part in f.parts for k, c in part.channels.items()}
+    return np.stack([channels[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1).astype(np.float64)

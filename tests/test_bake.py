@@ -18,7 +18,7 @@ from rgbd2scene.scene.materials import TissueDetail  # noqa: E402
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object  # noqa: E402
 from rgbd2scene.scene.paths import CameraPath  # noqa: E402
 from rgbd2scene.scene.rig import StereoRig  # noqa: E402
-from tests.conftest import write_scene_files  # noqa: E402
+from tests.conftest import render_base_colour, write_scene_files  # noqa: E402
 
 TISSUE_RGB = (200, 110, 100)
 
@@ -69,30 +69,13 @@ def test_seen_vertices_and_their_uv_window():
 def _albedo(detail: TissueDetail, folder) -> tuple[np.ndarray, object]:
     """Linear base colour the wet-tissue material gives a plane filling the view (192x96, left eye), and the
     material as built."""
-    import OpenEXR
-
     intr = Intrinsics.from_fov(192, 96, 70.0)
     desc = SceneDescription(StereoRig(intr, 0.004, clip_start=0.001, clip_end=1.0),
                             CameraPath(np.array([np.eye(4)]), fps=25.0, kind="test"), Light(power_w=0.05),
                             [tissue_object("wet_tissue", detail=detail)])
     build_scene(desc, write_scene_files(folder, _plane(0.06, 0.04, 0.05, n=16), desc))
     material = bpy.data.materials["wet_tissue"]
-    nodes, links = material.node_tree.nodes, material.node_tree.links
-    bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
-    emission = nodes.new("ShaderNodeEmission")  # show the base colour itself, unlit
-    links.new(bsdf.inputs["Base Color"].links[0].from_socket, emission.inputs["Color"])
-    links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
-    scene = bpy.context.scene
-    scene.render.use_multiview = False
-    scene.cycles.samples, scene.cycles.seed = 16, 0
-    settings = scene.render.image_settings
-    settings.media_type, settings.file_format, settings.color_depth = ("MULTI_LAYER_IMAGE", "OPEN_EXR_MULTILAYER",
-                                                                       "32")
-    scene.render.filepath = str(folder / "albedo.exr")
-    bpy.ops.render.render(write_still=True)
-    with OpenEXR.File(str(folder / "albedo.exr"), separate_channels=True) as f:
-        channels = {k: np.array(c.pixels) for part in f.parts for k, c in part.channels.items()}
-    return np.stack([channels[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1).astype(np.float64), material
+    return render_base_colour(bpy, "wet_tissue", folder / "albedo.exr"), material
 
 
 def test_baked_detail_matches_the_procedural_shader(tmp_path):

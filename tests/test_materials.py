@@ -70,7 +70,7 @@ from rgbd2scene.cli import main  # noqa: E402
 from rgbd2scene.files.images import write_image  # noqa: E402
 from rgbd2scene.stages.blender import BuildScene, Task, run_task  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
-from tests.conftest import write_scene_files  # noqa: E402
+from tests.conftest import render_base_colour, write_scene_files  # noqa: E402
 
 TISSUE_RGB = (200, 110, 100)
 
@@ -90,28 +90,11 @@ def _plane(half: float = 0.04, z: float = 0.05) -> SimpleNamespace:
 
 def _albedo(detail: TissueDetail, tmp_path) -> np.ndarray:
     """Linear RGB base colour the wet-tissue material computes on a plane filling the view (192x96, left eye)."""
-    import OpenEXR
-
     intr = Intrinsics.from_fov(192, 96, 70.0)  # 0.4 mm pixels: most of the mottling's octaves resolved
     desc = _description(detail, intr, [np.eye(4)])
     folder = tmp_path / "albedo_scene"
     build_scene(desc, write_scene_files(folder, _plane(), desc))
-    nodes, links = (bpy.data.materials["wet_tissue"].node_tree.nodes, bpy.data.materials["wet_tissue"].node_tree.links)
-    bsdf = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
-    emission = nodes.new("ShaderNodeEmission")  # show the base colour itself, unlit
-    links.new(bsdf.inputs["Base Color"].links[0].from_socket, emission.inputs["Color"])
-    links.new(emission.outputs["Emission"], nodes["Material Output"].inputs["Surface"])
-    scene = bpy.context.scene
-    scene.render.use_multiview = False
-    scene.cycles.samples, scene.cycles.seed = 16, 0
-    settings = scene.render.image_settings
-    settings.media_type, settings.file_format, settings.color_depth = ("MULTI_LAYER_IMAGE", "OPEN_EXR_MULTILAYER",
-                                                                       "32")
-    scene.render.filepath = str(tmp_path / "albedo.exr")
-    bpy.ops.render.render(write_still=True)
-    with OpenEXR.File(str(tmp_path / "albedo.exr"), separate_channels=True) as f:
-        channels = {k: np.array(c.pixels) for part in f.parts for k, c in part.channels.items()}
-    return np.stack([channels[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+    return render_base_colour(bpy, "wet_tissue", tmp_path / "albedo.exr")
 
 
 def test_detail_keeps_the_mean_colour_and_adds_the_asked_contrast(tmp_path):
