@@ -64,3 +64,17 @@ def render_base_colour(bpy, material: str, exr: Path) -> np.ndarray:
     with OpenEXR.File(str(exr), separate_channels=True) as f:
         channels = {k: np.array(c.pixels) for part in f.parts for k, c in part.channels.items()}
     return np.stack([channels[f"ViewLayer.Combined.{c}"] for c in "RGB"], axis=-1).astype(np.float64)
+
+
+def flat_grid(z: float, half: float, n: int, grey: int = 150):
+    """A fronto-parallel square grid mesh (n x n vertices, side 2 * half) at depth z, facing the camera at the
+    origin, in one grey vertex colour."""
+    from rgbd2scene.geometry.mesh import Mesh
+
+    xs = np.linspace(-half, half, n)
+    x, y = np.meshgrid(xs, xs)
+    vertices = np.stack([x, y, np.full_like(x, z)], -1).reshape(-1, 3)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    tris = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
+    return Mesh(vertices=vertices, triangles=tris.astype(np.int32), vertex_colors=np.full((n * n, 3), grey, np.uint8))

@@ -26,6 +26,7 @@ from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.objects.assemble import Tissue, add_objects
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
+from tests.conftest import flat_grid
 
 pytest.importorskip("bpy")
 
@@ -40,13 +41,7 @@ PLANE_Z = 0.05
 
 
 def _grid(z: float, half: float = 0.04, n: int = 61) -> Mesh:
-    xs = np.linspace(-half, half, n)
-    x, y = np.meshgrid(xs, xs)
-    vertices = np.stack([x, y, np.full_like(x, z)], -1).reshape(-1, 3)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    tris = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
-    return Mesh(vertices=vertices, triangles=tris.astype(np.int32), vertex_colors=np.full((n * n, 3), 150, np.uint8))
+    return flat_grid(z, half, n)
 
 
 def _build(folder: Path, rig: StereoRig) -> Path:

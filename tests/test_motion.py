@@ -33,6 +33,7 @@ from rgbd2scene.scene.model import (
 )
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
+from tests.conftest import flat_grid
 
 pytest.importorskip("bpy")
 
@@ -47,14 +48,7 @@ PLANE_Z = 0.05
 
 
 def _grid(z: float, half: float = 0.05, n: int = 41) -> Mesh:
-    """A fronto-parallel square grid (n x n vertices) at depth z, facing the camera at the origin."""
-    xs = np.linspace(-half, half, n)
-    x, y = np.meshgrid(xs, xs)
-    vertices = np.stack([x, y, np.full_like(x, z)], -1).reshape(-1, 3)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    tris = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
-    return Mesh(vertices=vertices, triangles=tris.astype(np.int32), vertex_colors=np.full((n * n, 3), 150, np.uint8))
+    return flat_grid(z, half, n)
 
 
 def _build(folder: Path, description: SceneDescription) -> Path:

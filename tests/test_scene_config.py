@@ -25,6 +25,7 @@ from rgbd2scene.scene.objects.assemble import Tissue, add_objects
 from rgbd2scene.scene.objects.imported import keyframe_poses, read_mesh_file, rigid_pose
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig
+from tests.conftest import flat_grid
 
 CAPTURE = Intrinsics(40, 30, 30.0, 30.0, 19.5, 14.5)
 PLANE_Z = 0.05
@@ -32,14 +33,7 @@ PLANE_Z = 0.05
 
 def _grid_plane(n: int = 21, half: float = 0.06) -> Mesh:
     """A flat grid at z = PLANE_Z facing the capture camera at the origin."""
-    xs = np.linspace(-half, half, n)
-    x, y = np.meshgrid(xs, xs)
-    vertices = np.column_stack([x.ravel(), y.ravel(), np.full(n * n, PLANE_Z)])
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    triangles = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
-    colours = np.full((n * n, 3), 140, np.uint8)
-    return Mesh(vertices=vertices, triangles=triangles.astype(np.int32), vertex_colors=colours)
+    return flat_grid(PLANE_Z, half, n, grey=140)
 
 
 def _box_file(folder: Path, name: str = "box.stl", size_mm: float = 4.0) -> Path:
