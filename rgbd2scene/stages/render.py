@@ -236,6 +236,21 @@ class RenderJob:
         return [i for i in group if not ds.frame_done(self.out, i, gt=self.with_gt, geometry=self.with_geometry)]
 
 
+def frame_range(options: RenderOptions, description: SceneDescription, scene_dir: Path) -> tuple[int, int, int]:
+    """(dataset length, first frame, end) of a render: ``--frames`` (default the whole camera path) and the chunk
+    ``--start``/``--end`` inside it; one-line :class:`UserError` naming the flag when out of range."""
+    path_frames = description.path.frames
+    n = path_frames if options.frames is None else int(options.frames)
+    if n < 1 or n > path_frames:
+        raise UserError(f"--frames: {n} is not between 1 and the {path_frames} frames of the camera path "
+                        f"in {scene_dir / SCENE_JSON}")
+    s = 0 if options.start is None else int(options.start)
+    e = n if options.end is None else int(options.end)
+    if not 0 <= s < e <= n:
+        raise UserError(f"--start/--end: [{s}, {e}) is not a non-empty range inside the {n} frames")
+    return n, s, e
+
+
 def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions,
                    python: str | None = None) -> RenderJob:
     """Validate a render, write ``DATASET/dataset.json`` (or check that an existing one allows resuming),
@@ -250,15 +265,7 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
 
     scene_dir, _record, description = load_scene(scene_dir, python)
     options = scene_environment(options, description)
-    path_frames = description.path.frames
-    n = path_frames if options.frames is None else int(options.frames)
-    if n < 1 or n > path_frames:
-        raise UserError(f"--frames: {n} is not between 1 and the {path_frames} frames of the camera path "
-                        f"in {scene_dir / SCENE_JSON}")
-    s = 0 if options.start is None else int(options.start)
-    e = n if options.end is None else int(options.end)
-    if not 0 <= s < e <= n:
-        raise UserError(f"--start/--end: [{s}, {e}) is not a non-empty range inside the {n} frames")
+    n, s, e = frame_range(options, description, scene_dir)
     description = render_model(description, options)
     if options.maps and options.gt_source == "blender" and not description.rig.rectified:
         raise UserError("--gt-source: Blender's passes are those of a pinhole: a raw scope (distortion or unequal "
@@ -355,14 +362,7 @@ def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     missing = [part.geometry for _, part in description.parts() if not (scene_dir / part.geometry).is_file()]
     if missing:
         raise UserError(f"{scene_dir}: --gt-only needs the scene's geometry files ({', '.join(missing)} missing)")
-    n = description.path.frames if options.frames is None else int(options.frames)
-    if n < 1 or n > description.path.frames:
-        raise UserError(f"--frames: {n} is not between 1 and the {description.path.frames} frames of the camera "
-                        f"path in {scene_dir / SCENE_JSON}")
-    s = 0 if options.start is None else int(options.start)
-    e = n if options.end is None else int(options.end)
-    if not 0 <= s < e <= n:
-        raise UserError(f"--start/--end: [{s}, {e}) is not a non-empty range inside the {n} frames")
+    n, s, e = frame_range(options, description, scene_dir)
     out = ensure_output_dir(out_dir)
     json_path = out / ds.DATASET_JSON
     existing = ds.read_dataset_json(out) if json_path.is_file() else None
