@@ -281,3 +281,20 @@ def test_the_contact_sheet_of_a_raw_pair_shows_its_correspondence(raw):
     np.testing.assert_array_equal(panels["correspondence"].image, colorize_flow(gt["correspondence"]))
     finite = np.isfinite(gt["correspondence"]).all(axis=-1)
     assert finite.mean() > 0.5 and np.all(gt["correspondence"][finite][:, 0] < 0)  # the right eye sees it further left
+
+
+def test_a_raw_scope_refuses_what_it_cannot_render_exactly(scene, tmp_path):
+    """Motion blur needs the camera's motion within the shutter, which the worker's per-frame placement of a raw
+    rig does not give; Blender's passes (the fallback of a scene folder without its geometry files) are a
+    pinhole's. Both are one-line errors before anything is written."""
+    import shutil
+
+    with pytest.raises(UserError, match="^--motion-blur: not available for a raw scope"):
+        render_dataset(scene, tmp_path / "blur", sensor=SensorOptions(motion_blur=0.5), progress=False)
+    blend_only = tmp_path / "blend_only"
+    blend_only.mkdir()
+    for name in ("scene.blend", "scene.json"):
+        shutil.copy(scene / name, blend_only / name)
+    with pytest.raises(UserError, match="^--gt-source: Blender's passes are those of a pinhole"):
+        render_dataset(blend_only, tmp_path / "passes", progress=False)
+    assert not (tmp_path / "blur").exists() and not (tmp_path / "passes").exists()

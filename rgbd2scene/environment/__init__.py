@@ -23,11 +23,6 @@ def active_effects(options: EnvironmentOptions, seed: int) -> list:
     return [cls.from_options(options, seed) for cls, on in EFFECTS.values() if on(options)]
 
 
-def needs_distance(options: EnvironmentOptions) -> bool:
-    """Whether any effect is on (they all need each pixel's ray length: the RGB render's Depth pass)."""
-    return bool(active_effects(options, 0))
-
-
 def apply_environment(linear: np.ndarray, distance: np.ndarray | None, time_s: float, effects: list) -> np.ndarray:
     """``linear`` through every effect in turn."""
     for effect in effects:
@@ -35,5 +30,4 @@ def apply_environment(linear: np.ndarray, distance: np.ndarray | None, time_s: f
     return linear
 
 
-__all__ = ["EFFECTS", "EnvironmentOptions", "Smoke", "active_effects", "apply_environment", "needs_distance",
-           "ray_length"]
+__all__ = ["EFFECTS", "EnvironmentOptions", "Smoke", "active_effects", "apply_environment", "ray_length"]

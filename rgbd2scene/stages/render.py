@@ -267,12 +267,18 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     options = scene_environment(options, description)
     n, s, e = frame_range(options, description, scene_dir)
     description = render_model(description, options)
-    if options.maps and options.gt_source == "blender" and not description.rig.rectified:
-        raise UserError("--gt-source: Blender's passes are those of a pinhole: a raw scope (distortion or unequal "
-                        "eyes) takes its ground truth from the scene model (or render --rectify)")
     if options.maps and options.gt_source == "model" and not all(
             (scene_dir / part.geometry).is_file() for _, part in description.parts()):
         options = replace(options, gt_source="blender")  # a scene folder with its .blend only: Blender's passes
+    if options.maps and options.gt_source == "blender" and not description.rig.rectified:
+        raise UserError("--gt-source: Blender's passes are those of a pinhole: a raw scope (distortion or unequal "
+                        "eyes) takes its ground truth from the scene model, which needs the scene's geometry "
+                        f"files in {scene_dir} (or render --rectify)")
+    if options.sensor.motion_blur > 0 and (options.rectify or not description.rig.rectified):
+        # the worker places the camera of a raw or rectified-from-raw rig itself, frame by frame: no camera
+        # motion within the shutter, so the blur would be only the objects'
+        raise UserError("--motion-blur: not available for a raw scope or --rectify (the camera is placed per "
+                        "frame, so its motion within the shutter is not rendered)")
     out = ensure_output_dir(out_dir)
 
     info = dataset_info(scene_dir, out, description, n, options)
@@ -362,6 +368,7 @@ def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     missing = [part.geometry for _, part in description.parts() if not (scene_dir / part.geometry).is_file()]
     if missing:
         raise UserError(f"{scene_dir}: --gt-only needs the scene's geometry files ({', '.join(missing)} missing)")
+    options = scene_environment(options, description)  # recorded as a full render records it
     n, s, e = frame_range(options, description, scene_dir)
     out = ensure_output_dir(out_dir)
     json_path = out / ds.DATASET_JSON

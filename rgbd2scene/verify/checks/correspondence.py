@@ -40,7 +40,7 @@ class CorrespondenceCheck(Check):
             c = a.map("correspondence")
             if c is None:
                 continue
-            surface = a.surface & a.static
+            surface = a.surface  # both eyes at the same frame: moving objects are where the depth says
             points = transform_points(a.T_world_cam, a.camera.backproject(np.where(surface, a.depth, np.nan)))
             u, v = b.camera.project(transform_points(invert_pose(b.T_world_cam), points))
             gu, gv = pixel_grid(*pair.run.shape)
