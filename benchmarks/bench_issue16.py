@@ -188,26 +188,21 @@ def main(argv: list[str] | None = None) -> int:
              f"{br.mesh_vertices(scene):,}-vertex mesh of `data_samples/tissue` (bench_render's scene). Library "
              f"default RGB: {br.default_setting().label}. Method: see the script's docstring."]
     record = {}
-    if "gt" in args.sections:
-        print("1. ground truth vs RGB only", flush=True)
-        text, record["gt"] = gt_section(scene, args.long_frames)
+    sections = [  # (key, heading, section function, its argument)
+        ("gt", "1. Ground truth vs RGB only", gt_section, args.long_frames),
+        ("gt_only", "2. Ground truth without Blender (`render --gt-only`, 512x256)", gt_only_section,
+         args.gt_only_frames),
+        ("visionblender", "3. Default vs VisionBlender-style (10 stereo frames, 512x256)", vb_section,
+         args.vb_repeats),
+        ("memory", "4. Memory of one worker (64x32)", memory_section, args.memory_frames),
+    ]
+    for key, heading, section, arg in sections:
+        if key not in args.sections:
+            continue
+        print(heading, flush=True)
+        text, record[key] = section(scene, arg)
         print(text, flush=True)
-        parts += ["", "## 1. Ground truth vs RGB only", "", text]
-    if "gt_only" in args.sections:
-        print("2. ground truth without Blender", flush=True)
-        text, record["gt_only"] = gt_only_section(scene, args.gt_only_frames)
-        print(text, flush=True)
-        parts += ["", "## 2. Ground truth without Blender (`render --gt-only`, 512x256)", "", text]
-    if "visionblender" in args.sections:
-        print("3. default vs VisionBlender-style", flush=True)
-        text, record["visionblender"] = vb_section(scene, args.vb_repeats)
-        print(text, flush=True)
-        parts += ["", "## 3. Default vs VisionBlender-style (10 stereo frames, 512x256)", "", text]
-    if "memory" in args.sections:
-        print("4. memory of one worker", flush=True)
-        text, record["memory"] = memory_section(scene, args.memory_frames)
-        print(text, flush=True)
-        parts += ["", "## 4. Memory of one worker (64x32)", "", text]
+        parts += ["", f"## {heading}", "", text]
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").is_file() else []
     parts += ["", f"Load average at the end {' '.join(load)}; benchmark wall time {time.perf_counter() - t0:.0f} s."]
     if args.out:

@@ -153,8 +153,11 @@ class Renderer:
         # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check).
         # The model (open3d, the parts' geometry) loads in a thread meanwhile: it overlaps Blender's first render
         self.from_model = bool(options.maps) and options.gt_source == "model"
-        self._model_gt = (ThreadPoolExecutor(max_workers=1).submit(
-            ModelGroundTruth.of_scene, description, scene_dir, self.frames, options.maps) if self.from_model else None)
+        self._model_gt = None
+        if self.from_model:
+            loader = ThreadPoolExecutor(max_workers=1)
+            self._model_gt = loader.submit(ModelGroundTruth.of_scene, description, scene_dir, self.frames, options.maps)
+            loader.shutdown(wait=False)  # the submitted load still runs to its end
         blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
