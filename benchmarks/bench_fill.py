@@ -54,7 +54,11 @@ Per family, the summary gives auto's error over each row's best reference method
 worst, rows above 1.10), compares ``auto`` with the best single reference method over the family (each
 method scored by the geometric mean over the family's rows of its error over the row's best reference
 method), and counts the rows where ``auto`` is more than 10 % worse than the best of every plain solver;
-then it lists each row that misses the goal with what auto used and what did best.
+then it lists each row that misses the goal with what auto used, what did best, and where auto's error
+lies: its share of the MAE on the pixels of each part of its fill (``FillResult.parts``: occlusion
+shadows filled from the far side, interior holes filled by the per-hole choice, the border band
+extended from the surface) and on the hidden pixels it left open, each against the best reference
+method's share on the same pixels.
 """
 
 from __future__ import annotations
@@ -323,13 +327,36 @@ def run_case(case: dict) -> list[dict]:
         best_all = min(plain, key=lambda m: scores[m]["all_mae"])
         best_ref = min((m for m in REFERENCE if m in scores), key=lambda m: scores[m]["all_mae"])
         best_filled = min(plain, key=lambda m: np.nan_to_num(scores[m]["filled_mae"], nan=np.inf))
+        parts = auto_parts(res, hidden, {m: np.abs(np.where(np.isfinite(o[hidden]), o[hidden], fallback) - truth)
+                                         for m, o in outs.items()})
         rows.append({"capture": cap.name, "family": case["family"], "holes": label, "seed": case["seed"],
                      "note": case["note"], "hidden": int(hidden.sum()), "scores": scores, "auto_method": res.method,
                      "best_all": best_all, "best_filled": best_filled, "best_ref": best_ref,
                      "ratio_ref": scores["auto"]["all_mae"] / scores[best_ref]["all_mae"],
                      "ratio_all": scores["auto"]["all_mae"] / scores[best_all]["all_mae"],
-                     "ratio_filled": scores["auto"]["filled_mae"] / scores[best_filled]["filled_mae"]})
+                     "ratio_filled": scores["auto"]["filled_mae"] / scores[best_filled]["filled_mae"],
+                     "parts": parts})
     return rows
+
+
+#: The parts of auto's fill a miss is split into (``FillResult.parts``), and the hidden pixels auto left open.
+PARTS = ("shadow", "holes", "band", "unfilled")
+
+
+def auto_parts(res, hidden: np.ndarray, errors: dict[str, np.ndarray]) -> dict[str, dict]:
+    """Where auto's error lies: for each part of its fill (:data:`PARTS`), the hidden pixels in it and
+    each method's share of the all-pixel MAE there (mm: the sum of its errors on the part over all hidden
+    pixels, so that auto's shares add up to its MAE), with the best reference method on the part."""
+    masks = {name: res.parts[name][hidden] for name in PARTS[:3]}
+    masks["unfilled"] = ~np.isfinite(res.depth[hidden])
+    out = {}
+    for name, m in masks.items():
+        if not m.any():
+            continue
+        share = {k: float(e[m].sum() * 1000.0 / m.size) for k, e in errors.items()}
+        best = min((k for k in REFERENCE if k in share), key=share.get)
+        out[name] = {"pixels": int(m.sum()), "share_mm": share, "best_ref": best}
+    return out
 
 
 def _num(v: float) -> str:
@@ -405,7 +432,7 @@ def summarise(rows: list[dict]) -> str:
 
 def misses(rows: list[dict]) -> str:
     """The rows where auto is more than 10 % worse than the row's best reference method, with what auto
-    used there and what did best."""
+    used there, what did best, and where auto's error lies (:func:`where`)."""
     losses = [r for r in rows if r["ratio_ref"] > 1.10]
     lines = [f"Rows where auto is more than 10 % worse than the row's best reference method: {len(losses)} of "
              f"{len(rows)}" + (":" if losses else ".")]
@@ -415,8 +442,15 @@ def misses(rows: list[dict]) -> str:
                      f"against {r['best_ref']} {_num(s[r['best_ref']]['all_mae'])} mm); auto used "
                      f"{r['auto_method'].removeprefix('auto: ')}"
                      + (f", left {100 * s['auto']['unfilled']:.1f} % unfilled" if s["auto"]["unfilled"] > 0.0005
-                        else "") + (f"; {r['note']}" if r["note"] else ""))
+                        else "") + (f"; {r['note']}" if r["note"] else "") + "; where: " + where(r))
     return "\n".join(lines)
+
+
+def where(row: dict) -> str:
+    """A miss split by the parts of auto's fill (:func:`auto_parts`): each part's pixels, auto's share of
+    the MAE there against the best reference method's on the same pixels."""
+    return ", ".join(f"{name} {p['pixels']} px {_num(p['share_mm']['auto'])} against {p['best_ref']} "
+                     f"{_num(p['share_mm'][p['best_ref']])}" for name, p in row["parts"].items())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -468,6 +502,11 @@ def main(argv: list[str] | None = None) -> int:
         + summarise(rows) + "\n\n"
         f"All rows: geometric mean of auto / best reference {np.exp(np.log(ratios).mean()):.3f}, worst "
         f"{ratios.max():.2f}.\n\n" + misses(rows) + "\n\n"
+        "`where`: auto's share of the all-pixel MAE (mm) on the hidden pixels of each part of its fill (shadow: "
+        "occlusion shadows filled from their far end; holes: interior holes, filled by the per-hole choice; band: "
+        "the border band and what only it separates from the surface, extended from the surface; unfilled: left "
+        "open as outside the captured surface), against the best reference method's share on the same pixels "
+        "(which method that is may differ from part to part).\n\n"
         "Median time per 640x480 fill (s): " + ", ".join(f"{m} {t:.2f}" for m, t in times.items())
         + f". Benchmark wall time {time.perf_counter() - t0:.0f} s.\n\n"
         "## Every row\n\n" + format_rows(rows) + "\n")

@@ -124,6 +124,10 @@ class FillResult:
     method : the method actually used (for ``auto`` what it chose, e.g. ``"auto: background+harmonic"``).
     settings : every setting, JSON-serialisable.
     stats : JSON-serialisable statistics (fractions of the image, hole counts, seconds).
+    parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadows,
+        filled from their far end), ``"holes"`` (the interior holes, by the method or ``auto``'s choice
+        per hole) and ``"band"`` (the border band and the holes only it separates from the surface,
+        extended from the surface).
     """
 
     depth: np.ndarray
@@ -131,6 +135,7 @@ class FillResult:
     method: str
     settings: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    parts: dict = field(default_factory=dict)
 
 
 def fill_depth(
@@ -201,6 +206,7 @@ def fill_depth(
 
     used = method
     counts: dict[str, int] = {}
+    shadow = np.zeros(depth.shape, dtype=bool)
     if method == "none" or not valid.any() or not interior.any():
         out = work.copy()
     elif method == "inpaint":
@@ -214,12 +220,15 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius, copies)
+        out, counts, shadow = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius,
+                                    copies)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
     if rest is not None and rest.any():
         out[rest] = fill_biharmonic(out, rest)[rest]
+    else:
+        rest = np.zeros(depth.shape, dtype=bool)
     out[valid] = depth[valid]  # valid pixels are never changed
     filled = holes.holes & np.isfinite(out)
 
@@ -239,14 +248,15 @@ def fill_depth(
         "classify_seconds": round(classify_s, 4),
         "seconds": round(time.perf_counter() - t0, 4),
     }
-    return FillResult(out.astype(np.float32), filled, used, settings, stats)
+    parts = {"shadow": shadow & filled, "holes": interior & ~shadow & ~rest & filled, "band": rest & filled}
+    return FillResult(out.astype(np.float32), filled, used, settings, stats, parts)
 
 
 def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; every other interior
     hole -> the fill :func:`choose_per_hole` picks for it. The rest of the band is left to the caller.
 
-    Returns the filled depth and the number of pixels each fill filled.
+    Returns the filled depth, the number of pixels each fill filled and the shadow pixels.
     """
     out = work.copy()
     counts: dict[str, int] = {}
@@ -257,7 +267,7 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
         counts["background"] = int(shadow.sum())
     rest = todo & ~band & ~shadow
     if not rest.any():
-        return out, counts
+        return out, counts, shadow
     labels, n = components(rest)
     stepped = np.zeros(n + 1, dtype=bool)
     stepped[labels[runs.pixels(work.shape) & rest]] = True
@@ -281,7 +291,7 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
-    return out, counts
+    return out, counts, shadow
 
 
 #: What ``auto`` chooses from per hole: one base fill, or the mean of two (:func:`choose_per_hole`).
