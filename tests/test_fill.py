@@ -244,6 +244,29 @@ def test_valid_pixels_are_untouched_and_result_is_serialisable(method):
         assert res.method.startswith("auto: ") and "background" in res.method
 
 
+def test_parts_split_the_filled_pixels_by_the_step_that_filled_them():
+    """``FillResult.parts``: auto's shadow rows, its interior holes and the border band, disjoint, and
+    together every filled pixel."""
+    truth, rgb = step_scene()
+    depth = truth.copy()
+    width = shadow_width(truth, 90, 89, 0.075)
+    shadow = np.zeros((H, W), bool)
+    shadow[20:100, 90 - width:90] = True
+    band = np.zeros((H, W), bool)
+    band[:, :6] = True  # a sensor's band along the left edge
+    holes = disc(60, 40, 8)
+    depth[shadow | band | holes] = np.nan
+    res = fill_depth(depth, rgb, "auto", sensor=KINECT_V1, fx=FX)
+    parts = res.parts
+    assert set(parts) == {"shadow", "holes", "band"}
+    assert np.array_equal(parts["shadow"] | parts["holes"] | parts["band"], res.filled)
+    assert parts["shadow"].sum() + parts["holes"].sum() + parts["band"].sum() == res.filled.sum()  # disjoint
+    assert parts["shadow"][shadow].all() and not parts["shadow"][holes | band].any()
+    assert parts["holes"][holes].all() and parts["band"][band].all()
+    plain = fill_depth(depth, rgb, "biharmonic")
+    assert not plain.parts["shadow"].any() and plain.parts["holes"][shadow | holes].all()
+
+
 def test_large_enclosed_hole_is_filled():
     truth = smooth_surface()
     depth = truth.copy()
