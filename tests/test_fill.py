@@ -267,6 +267,19 @@ def test_parts_split_the_filled_pixels_by_the_step_that_filled_them():
     assert not plain.parts["shadow"].any() and plain.parts["holes"][shadow | holes].all()
 
 
+def test_restricting_a_fill_to_the_image_restricts_its_parts():
+    from rgbd2scene.reconstruct.pipeline import restrict_to_image
+
+    truth = smooth_surface()
+    holes = disc(60, 80, 10)
+    res = fill_depth(np.where(holes, np.nan, truth).astype(np.float32), None, "auto")
+    image = np.ones((H, W), bool)
+    image[:, 80:] = False  # no image data right of column 80
+    kept = restrict_to_image(res, image)
+    assert res.parts["holes"][holes].all() and kept.parts["holes"].sum() < res.parts["holes"].sum()
+    assert np.array_equal(kept.parts["holes"], kept.filled & holes)
+
+
 def test_large_enclosed_hole_is_filled():
     truth = smooth_surface()
     depth = truth.copy()

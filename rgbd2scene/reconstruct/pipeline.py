@@ -75,7 +75,8 @@ def restrict_to_image(filled: FillResult, image_mask: np.ndarray) -> FillResult:
     """The fill result with NaN outside ``image_mask`` (pixels without image data are never meshed)."""
     depth = np.where(image_mask, filled.depth, np.nan).astype(np.float32)
     stats = {**filled.stats, "outside_image_fraction": float(np.mean(~image_mask))}
-    return replace(filled, depth=depth, filled=filled.filled & image_mask, stats=stats)
+    parts = {name: part & image_mask for name, part in filled.parts.items()}
+    return replace(filled, depth=depth, filled=filled.filled & image_mask, stats=stats, parts=parts)
 
 
 def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconstruction:
