@@ -73,6 +73,10 @@ class SceneGeometry:
         self._static_normals: np.ndarray | None = None
         self._lock = threading.RLock()  # the render worker asks from two threads
 
+    def _frame_key(self, frame: int) -> int:
+        """The key of ``frame``'s vertices: 0 for every frame of a static scene."""
+        return 0 if self.static else int(frame)
+
     def part_vertices(self, index: int, frame: int) -> np.ndarray:
         """World-frame vertices (N, 3) float64 of the ``index``-th part at ``frame``.
 
@@ -88,7 +92,7 @@ class SceneGeometry:
 
     def vertices(self, frame: int) -> np.ndarray:
         """World-frame vertices of every part at ``frame``, concatenated in model order (N, 3) float64."""
-        key = 0 if self.static else int(frame)
+        key = self._frame_key(frame)
         with self._lock:
             out = self._vertices.get(key)
             if out is None:
@@ -132,7 +136,7 @@ class SceneGeometry:
         """
         culled = (camera is not None and T_world_cam is not None
                   and any(np.array_equal(T_world_cam, e) for e in self._eye_poses(frame)))
-        key: tuple = (0 if self.static else int(frame),)
+        key: tuple = (self._frame_key(frame),)
         if culled:
             key += (camera,)
             if self.static:  # the camera moves: the view changes with the frame
@@ -149,19 +153,26 @@ class SceneGeometry:
             return rc
 
     def _normals(self, frame: int, subset: np.ndarray | None) -> np.ndarray | None:
-        """Angle-weighted vertex normals for a ray caster of ``frame``: a static scene's, once; a moving one's
-        from the triangles around ``subset`` only (every triangle sharing a vertex with one: exact at the
-        vertices a cast against ``subset`` can hit); None (the caster computes them) for the whole scene."""
-        if self.static:
-            if self._static_normals is None:
-                self._static_normals = vertex_normals(self.vertices(frame), self.triangles, "angle")
-            return self._static_normals
+        """Angle-weighted vertex normals for a ray caster of ``frame``.
+
+        For a cast against ``subset``: those of the vertices of its triangles (zero elsewhere), computed on the
+        triangles around them only (every triangle sharing a vertex with one, in the mesh's order, so each
+        vertex's sum has the same terms in the same order as over the whole mesh: the same bits), a few
+        thousand triangles instead of the whole mesh. For the whole scene: a static scene's, once; None for a
+        moving one (the caster computes them).
+        """
+        vertices = self.vertices(frame)
         if subset is None:
-            return None
-        seen = np.zeros(len(self.vertices(frame)), bool)
+            if self.static and self._static_normals is None:
+                self._static_normals = vertex_normals(vertices, self.triangles, "angle")
+            return self._static_normals if self.static else None
+        seen = np.zeros(len(vertices), bool)
         seen[self.triangles[subset]] = True
         around = self.triangles[seen[self.triangles].any(axis=1)]
-        return vertex_normals(self.vertices(frame), around, "angle")
+        used, corners = np.unique(around, return_inverse=True)
+        out = np.zeros((len(vertices), 3))
+        out[used] = vertex_normals(vertices[used], corners.reshape(-1, 3), "angle")
+        return out
 
     def view_support(self, index: int, frame: int, cameras) -> np.ndarray:
         """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes (``cameras``:
@@ -206,9 +217,15 @@ class SceneGeometry:
         u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
         weights = (1.0 - u - v, u, v)
 
+        followed: dict[int, np.ndarray] = {}  # by vertex key: a static scene's points are the same every frame
+
         def at(frame: int) -> np.ndarray:
-            vertices = self.vertices(frame)
-            return sum(w * vertices[corners[..., k]] for k, w in enumerate(weights))
+            key = self._frame_key(frame)
+            if key not in followed:
+                vertices = self.vertices(frame)
+                followed[key] = sum(w * vertices[corners[..., k]] for k, w in enumerate(weights))
+                followed[key].flags.writeable = False  # shared by the callers
+            return followed[key]
 
         return at
 
