@@ -71,6 +71,7 @@ class SceneGeometry:
         self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
         self._static_normals: np.ndarray | None = None
+        self._corner_order: tuple[np.ndarray, np.ndarray] | None = None  # see _triangles_around
         self._lock = threading.RLock()  # the render worker asks from two threads
 
     def _frame_key(self, frame: int) -> int:
@@ -166,13 +167,25 @@ class SceneGeometry:
             if self.static and self._static_normals is None:
                 self._static_normals = vertex_normals(vertices, self.triangles, "angle")
             return self._static_normals if self.static else None
-        seen = np.zeros(len(vertices), bool)
-        seen[self.triangles[subset]] = True
-        around = self.triangles[seen[self.triangles].any(axis=1)]
+        around = self.triangles[self._triangles_around(subset)]
         used, corners = np.unique(around, return_inverse=True)
         out = np.zeros((len(vertices), 3))
         out[used] = vertex_normals(vertices[used], corners.reshape(-1, 3), "angle")
         return out
+
+    def _triangles_around(self, subset: np.ndarray) -> np.ndarray:
+        """Indices of every triangle sharing a vertex with one of ``subset``, ascending (from each vertex's
+        list of triangles, made once: the mesh's connectivity is the same every frame)."""
+        if self._corner_order is None:
+            corner_vertices = self.triangles.ravel()
+            order = np.argsort(corner_vertices, kind="stable")
+            starts = np.searchsorted(corner_vertices[order], np.arange(self._offsets[-1] + 1))
+            self._corner_order = order // 3, starts
+        triangle_of, starts = self._corner_order
+        vertices = np.unique(self.triangles[subset])
+        counts = starts[vertices + 1] - starts[vertices]
+        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        return np.unique(triangle_of[np.repeat(starts[vertices], counts) + within])
 
     def view_support(self, index: int, frame: int, cameras) -> np.ndarray:
         """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes (``cameras``:
