@@ -507,20 +507,21 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
         model.submit(need_gt)
     maps_here = set(need_gt) if model is not None else set()  # frames the child writes the maps of
     t_mark, c_mark = time.perf_counter(), _cpu_s()
-    waiting: list[tuple[int, float]] = []  # (frame, when its images were done), in frame order
+    t_images = t_mark  # when the latest frame's images were done
+    waiting: list[tuple[int, float]] = []  # (frame, the seconds its images took), in frame order
 
     def finish(block: bool) -> None:
         """Send the done line of the frames at the front of ``waiting`` whose maps are written (of all of
         them, waiting for the maps, when ``block``)."""
         nonlocal t_mark, c_mark
         while waiting and (block or waiting[0][0] not in maps_here or model.done(waiting[0][0])):
-            index, t_images = waiting.pop(0)
+            index, t_rgb = waiting.pop(0)
             gt_cpu = model.wait(index) if index in maps_here else 0.0  # the child's CPU seconds
             now, cpu = time.perf_counter(), _cpu_s()
             t_frame, c_frame = now - t_mark, cpu - c_mark + gt_cpu  # this frame's share
             t_gt = now - max(t_images, t_mark)  # the wait for the model's maps: what the ground truth added
             t_mark, c_mark = now, cpu
-            say(frame_line(index, "done", t_frame, cpu=c_frame, rgb=t_frame - t_gt, gt=t_gt, rss=_rss_mb()))
+            say(frame_line(index, "done", t_frame, cpu=c_frame, rgb=t_rgb, gt=t_gt, rss=_rss_mb()))
 
     with ThreadPoolExecutor(max_workers=1) as develop_pool:
         developing: list[tuple[int, Future]] = []
@@ -544,10 +545,11 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
                     say(frame_line(done_index, "rgb", spent[done_index][0], cpu=spent[done_index][1],
                                    rss=_rss_mb()))
                 else:
-                    waiting.append((done_index, time.perf_counter()))
+                    now = time.perf_counter()
+                    waiting.append((done_index, now - max(t_images, t_mark)))
+                    t_images = now
                     finish(block=False)
-    images_there = [i for i in need_gt if i in maps_here and i not in set(need_rgb)]
-    waiting += [(i, time.perf_counter()) for i in images_there]
+    waiting += [(i, 0.0) for i in need_gt if i in maps_here and i not in set(need_rgb)]  # images there already
     finish(block=True)
     return spent
 

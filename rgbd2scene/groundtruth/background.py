@@ -4,9 +4,9 @@ written in a child process at the lowest CPU priority, beside a render.
 Why a process and not a thread of the Blender worker: a thread shares the worker's interpreter lock with
 Blender's own Python calls (opening the blend, setting the frame, reading the render back), so loading the
 model there slowed Blender's start-up, and it competes with Cycles for the two cores at the same priority.
-A child at ``nice`` 19 loads the model (open3d, the geometry, the first frame's ray-casting structure) while
-Blender starts up, and then computes frames in what Cycles leaves idle (scene sync, denoising, writes); what
-is left when the last image is done runs at full speed.
+The child loads the model (open3d, the geometry) while Blender starts up (mostly on one core), then lowers
+its priority to ``nice`` 19 and computes frames in what Cycles leaves idle (scene sync, denoising, writes);
+what is left when the last image is done runs at full speed.
 
 Protocol (text lines): the parent writes one JSON line (:class:`Job`), then one frame index per line and
 closes stdin when it has no more; the child answers ``done INDEX CPU_SECONDS`` per frame, in the order it
@@ -28,7 +28,7 @@ from pathlib import Path
 
 #: Frames the child computes at once (numpy and the ray caster release the GIL; the files are each frame's own).
 THREADS = 2
-#: The child's niceness: it takes only CPU that the render leaves idle.
+#: The child's niceness once the model is loaded: it takes only CPU that the render leaves idle.
 NICENESS = 19
 
 
@@ -116,11 +116,14 @@ class BackgroundGroundTruth:
 
 def _serve(job: Job, say) -> None:
     """Load the model, then compute and write each frame index read from stdin; ``say`` sends a line."""
+    import open3d  # noqa: F401 - the ray caster's library (~1 s): loaded with the model, before the nice
+
     from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
     from rgbd2scene.scene.model import SceneDescription
 
     model = ModelGroundTruth.of_scene(SceneDescription.from_dict(job.description), job.scene_dir, job.frames,
                                       tuple(job.maps))
+    os.nice(NICENESS)  # loaded at the render's priority (beside Blender's start-up, mostly one core); frames after
     lock = threading.Lock()
 
     def write(index: int) -> None:
@@ -143,7 +146,6 @@ def main(argv: list[str]) -> int:
     from rgbd2scene.worker_protocol import tie_to_parent
 
     tie_to_parent(int(argv[0]))  # never outlive the render worker
-    os.nice(NICENESS)
     progress = os.fdopen(os.dup(1), "w", buffering=1)  # stdout carries our lines only (open3d prints)
     os.dup2(2, 1)
 

@@ -2,11 +2,11 @@
 ``DATASET/geometry/`` and ``verify``'s ray casting of moving and deforming scenes.
 
 Every part's rest mesh is read from the scene folder (as the PLY stores it, the same float32 vertices Blender
-builds from), deformed by its :class:`~rgbd2scene.scene.deformation.Deformation` (the one formula, on the
-same area-weighted rest normals) and placed by its pose of the frame. Ray casts (Open3D, float32) report for
-every pixel the part's instance id, the triangle and the barycentric coordinates of the hit, so a surface
-point can be followed into another frame exactly: the same triangle, the same barycentric weights, that
-frame's vertices.
+builds from; cached by :mod:`~rgbd2scene.groundtruth.geometry_cache`), deformed by its
+:class:`~rgbd2scene.scene.deformation.Deformation` (the one formula, on the same area-weighted rest normals)
+and placed by its pose of the frame. Ray casts (Open3D, float32) report for every pixel the part's instance
+id, the triangle and the barycentric coordinates of the hit, so a surface point can be followed into another
+frame exactly: the same triangle, the same barycentric weights, that frame's vertices.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from rgbd2scene.conventions import invert_pose, transform_points
-from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.geometry.mesh import vertex_normals
 from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
+from rgbd2scene.groundtruth.geometry_cache import mesh_arrays
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
 
@@ -54,9 +54,8 @@ class SceneGeometry:
         self.description = description
         self.meshes: list[_PartMesh] = []
         for _, part in description.parts():
-            mesh = read_ply(Path(scene_dir) / part.geometry)
-            vertices = mesh.vertices.astype(np.float32).astype(np.float64)
-            triangles = np.asarray(mesh.triangles, dtype=np.int64)
+            stored, triangles = mesh_arrays(Path(scene_dir) / part.geometry)
+            vertices, triangles = stored.astype(np.float64), triangles.astype(np.int64)
             normals = basis = None
             if part.deformation is not None:
                 normals, basis = rest_normals(vertices, triangles), part.deformation.basis(vertices)
