@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import resource
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -74,7 +73,7 @@ from rgbd2scene.rendering import (
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import raw_render_plan
-from rgbd2scene.worker_protocol import Render, frame_line, ready_line
+from rgbd2scene.worker_protocol import Render, frame_line, ready_line, resident_mb
 
 GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
@@ -480,14 +479,6 @@ def _check_pose(scene, camera, description: SceneDescription, index: int, camera
                               f"{np.abs(found - expected).max():.2e} (> {POSE_TOLERANCE})")
 
 
-def _rss_mb() -> float:
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
-    except (OSError, ValueError, IndexError):
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
@@ -516,12 +507,13 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
         nonlocal t_mark, c_mark
         while waiting and (block or waiting[0][0] not in maps_here or model.done(waiting[0][0])):
             index, t_rgb = waiting.pop(0)
-            gt_cpu = model.wait(index) if index in maps_here else 0.0  # the child's CPU seconds
+            child = model.wait(index) if index in maps_here else None
             now, cpu = time.perf_counter(), _cpu_s()
-            t_frame, c_frame = now - t_mark, cpu - c_mark + gt_cpu  # this frame's share
+            t_frame, c_frame = now - t_mark, cpu - c_mark + (child.cpu_s if child else 0.0)  # this frame's share
             t_gt = now - max(t_images, t_mark)  # the wait for the model's maps: what the ground truth added
             t_mark, c_mark = now, cpu
-            say(frame_line(index, "done", t_frame, cpu=c_frame, rgb=t_rgb, gt=t_gt, rss=_rss_mb()))
+            say(frame_line(index, "done", t_frame, cpu=c_frame, rgb=t_rgb, gt=t_gt, rss=resident_mb(),
+                           **({"gt_rss": child.rss_mb} if child else {})))
 
     with ThreadPoolExecutor(max_workers=1) as develop_pool:
         developing: list[tuple[int, Future]] = []
@@ -543,7 +535,7 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
                     spent[done_index] = now - t_mark, cpu - c_mark
                     t_mark, c_mark = now, cpu
                     say(frame_line(done_index, "rgb", spent[done_index][0], cpu=spent[done_index][1],
-                                   rss=_rss_mb()))
+                                   rss=resident_mb()))
                 else:
                     now = time.perf_counter()
                     waiting.append((done_index, now - max(t_images, t_mark)))
@@ -601,4 +593,4 @@ def render_task(bpy, task: Render, say) -> None:
                     t_mark, c_mark = now, cpu
                     t_rgb, c_rgb = spent.get(done_index, (0.0, 0.0))
                     say(frame_line(done_index, "done", t_rgb + t_gt, cpu=c_rgb + c_gt, rgb=t_rgb, gt=t_gt,
-                                   rss=_rss_mb()))
+                                   rss=resident_mb()))

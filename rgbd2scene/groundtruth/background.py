@@ -9,7 +9,7 @@ its priority to ``nice`` 19 and computes frames in what Cycles leaves idle (scen
 what is left when the last image is done runs at full speed.
 
 Protocol (text lines): the parent writes one JSON line (:class:`Job`), then one frame index per line and
-closes stdin when it has no more; the child answers ``done INDEX CPU_SECONDS`` per frame, in the order it
+closes stdin when it has no more; the child answers ``done INDEX CPU_SECONDS RSS_MB`` per frame, in the order it
 finishes them. An error ends the child with a traceback on stderr (inherited: the worker's log).
 """
 
@@ -45,6 +45,14 @@ class Job:
     scratch: str
 
 
+@dataclass(frozen=True)
+class FrameCost:
+    """What the child spent on one frame: CPU seconds (its thread), and its resident memory after it (MB)."""
+
+    cpu_s: float
+    rss_mb: float
+
+
 class BackgroundGroundTruth:
     """A child process writing the ground truth of the frames :meth:`submit` names; :meth:`wait` for each.
 
@@ -69,9 +77,9 @@ class BackgroundGroundTruth:
     def _read(self) -> None:
         """Resolve each frame's future from the child's lines; when they end, fail whatever is left."""
         for line in self._proc.stdout:
-            word, index, cpu = line.split()
+            word, index, cpu, rss = line.split()
             if word == "done":
-                self._future(int(index)).set_result(float(cpu))
+                self._future(int(index)).set_result(FrameCost(float(cpu), float(rss)))
         code = self._proc.wait()
         with self._lock:
             left = [f for f in self._futures.values() if not f.done()]
@@ -93,8 +101,8 @@ class BackgroundGroundTruth:
         """Whether frame ``index``'s files are written (without waiting)."""
         return self._future(index).done()
 
-    def wait(self, index: int) -> float:
-        """Wait for frame ``index``'s files; returns the CPU seconds the child spent on it."""
+    def wait(self, index: int) -> FrameCost:
+        """Wait for frame ``index``'s files; returns what the child spent on it."""
         return self._future(index).result()
 
     def close(self) -> None:
@@ -120,6 +128,7 @@ def _serve(job: Job, say) -> None:
 
     from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
     from rgbd2scene.scene.model import SceneDescription
+    from rgbd2scene.worker_protocol import resident_mb
 
     model = ModelGroundTruth.of_scene(SceneDescription.from_dict(job.description), job.scene_dir, job.frames,
                                       tuple(job.maps))
@@ -131,7 +140,7 @@ def _serve(job: Job, say) -> None:
             cpu = time.thread_time()
             model.write(job.out_dir, index, Path(job.scratch))
             with lock:
-                say(f"done {index} {time.thread_time() - cpu:.4f}")
+                say(f"done {index} {time.thread_time() - cpu:.4f} {resident_mb():.1f}")
         except BaseException:  # noqa: BLE001 - end at once: the parent reports it
             traceback.print_exc()
             os._exit(1)
