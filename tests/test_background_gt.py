@@ -3,7 +3,13 @@ same bytes as written in-process, and a failure of the child reaches the caller.
 
 from __future__ import annotations
 
+import json
 import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -65,3 +71,42 @@ def test_a_failing_child_fails_the_frames_it_was_asked_for(tmp_path):
         child.wait(0)
     with pytest.raises(RuntimeError, match="failed"):
         child.close()
+
+
+#: A stand-in for the render worker: gives the child minutes of work (the same frames again and again: it
+#: is computing, not waiting for its input, when the worker dies), says its pid, then waits to be killed.
+WORKER = """
+import json, sys, time
+from rgbd2scene.groundtruth.background import BackgroundGroundTruth, Job
+child = BackgroundGroundTruth(Job(**json.loads(sys.argv[1])))
+child.submit(list(range(3)) * 10000)
+child.wait(0)
+print(child._proc.pid, flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.skipif(not os.path.isfile("/proc/self/stat"), reason="needs /proc (Linux)")
+def test_the_child_ends_when_its_worker_is_killed(tmp_path):
+    job = _job(_scene(tmp_path), tmp_path, tmp_path / "child")
+    worker = subprocess.Popen([sys.executable, "-c", WORKER, json.dumps(asdict(job))], stdout=subprocess.PIPE,
+                              text=True, start_new_session=True)
+    child = int(worker.stdout.readline())
+    assert _alive(child)
+    os.kill(worker.pid, signal.SIGKILL)
+    worker.wait(timeout=60)
+    deadline = time.monotonic() + 10.0
+    while _alive(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if _alive(child):
+        os.kill(child, signal.SIGKILL)  # leave nothing running behind a failed test
+        raise AssertionError("the ground-truth process outlived its worker")
+
+
+def _alive(pid: int) -> bool:
+    """The process runs (not gone, not a zombie)."""
+    try:
+        stat = open(f"/proc/{pid}/stat").read()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
