@@ -505,12 +505,13 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
         """Send the done line of the frames at the front of ``waiting`` whose maps are written (of all of
         them, waiting for the maps, when ``block``)."""
         nonlocal t_mark, c_mark
+        blocked = time.perf_counter()  # the render waits for the maps only from here, and only when ``block``
         while waiting and (block or waiting[0][0] not in maps_here or model.done(waiting[0][0])):
             index, t_rgb = waiting.pop(0)
             child = model.wait(index) if index in maps_here else None
             now, cpu = time.perf_counter(), _cpu_s()
             t_frame, c_frame = now - t_mark, cpu - c_mark + (child.cpu_s if child else 0.0)  # this frame's share
-            t_gt = now - max(t_images, t_mark)  # the wait for the model's maps: what the ground truth added
+            t_gt = now - max(blocked, t_mark) if block else 0.0  # the wait for the maps: what they added
             t_mark, c_mark = now, cpu
             say(frame_line(index, "done", t_frame, cpu=c_frame, rgb=t_rgb, gt=t_gt, rss=resident_mb(),
                            **({"gt_rss": child.rss_mb} if child else {})))
