@@ -73,6 +73,14 @@ def test_a_failing_child_fails_the_frames_it_was_asked_for(tmp_path):
         child.close()
 
 
+def test_an_error_of_the_render_is_the_one_reported_and_ends_the_child(tmp_path):
+    job = _job(_scene(tmp_path), tmp_path, tmp_path / "child")
+    with pytest.raises(ValueError, match="the render failed"), BackgroundGroundTruth(job) as child:
+        child.submit(range(FRAMES))
+        raise ValueError("the render failed")
+    assert child._proc.poll() is not None
+
+
 #: A stand-in for the render worker: gives the child minutes of work (the same frames again and again: it
 #: is computing, not waiting for its input, when the worker dies), says its pid, then waits to be killed.
 WORKER = """

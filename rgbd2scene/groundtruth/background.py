@@ -117,9 +117,12 @@ class BackgroundGroundTruth:
         return self
 
     def __exit__(self, *exc) -> None:
-        if exc[0] is not None:  # an error in the render: do not wait for frames nobody will use
-            self._proc.kill()
-        self.close()
+        if exc[0] is None:
+            self.close()
+            return
+        # an error in the render: it is the one to report; do not wait for frames nobody will use
+        self._proc.kill()
+        self._reader.join()
 
 
 def _serve(job: Job, say) -> None:
