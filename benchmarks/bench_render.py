@@ -48,6 +48,7 @@ import dataclasses
 import json
 import os
 import platform
+import resource
 import shutil
 import statistics
 import subprocess
@@ -161,6 +162,8 @@ class WorkerRun:
         The process's peak resident memory (``ru_maxrss``).
     wall_s
         The worker's whole wall time, process start to exit.
+    cpu_s
+        CPU seconds of the worker and its children (load-independent), process start to exit.
     """
 
     ready_s: float
@@ -168,6 +171,7 @@ class WorkerRun:
     rss_trace: list[float] = field(default_factory=list)
     peak_rss_mb: float = 0.0
     wall_s: float = 0.0
+    cpu_s: float = 0.0
 
 
 def default_setting() -> Setting:
@@ -192,6 +196,12 @@ def build_scene(folder: Path, extra: tuple[str, ...] = ()) -> None:
 def mesh_vertices(scene: Path) -> int:
     """Vertex count of a scene's mesh (from its ``scene.json``)."""
     return int(json.loads((scene / "scene.json").read_text())["mesh"]["stats"]["vertices"])
+
+
+def _children_cpu_s() -> float:
+    """CPU seconds of this process's finished children (and theirs)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def run_worker(scene: Path, out: Path, setting: Setting, start: int, end: int, frames: int, gt: str,
@@ -238,8 +248,9 @@ def run_worker(scene: Path, out: Path, setting: Setting, start: int, end: int, f
             if event.kind == "done":
                 run.frames[event.frame] = event.stats
 
+    cpu = _children_cpu_s()
     result = run_task(render_task(scene, out, model, options, frames, start, end), on_event)
-    run.peak_rss_mb, run.wall_s = result.peak_rss_mb, result.seconds
+    run.peak_rss_mb, run.wall_s, run.cpu_s = result.peak_rss_mb, result.seconds, _children_cpu_s() - cpu
     return run
 
 
@@ -409,8 +420,9 @@ def gt_cost(scene: Path, setting: Setting, frames: int, repeats: int, size: tupl
     dict
         Per mode (``"none"``, ``"all"``): ``start`` (worker start), ``first`` (first frame, including
         the start), ``steady``, ``rgb``, ``gt`` (steady-state seconds per frame and its two parts),
-        ``wall`` (the worker's whole run, mean); ``ratio`` (steady all / steady none), ``wall_ratio`` (wall
-        all / wall none), ``in_run_overhead`` (gt / rgb of the GT runs).
+        ``wall`` and ``cpu`` (the worker's whole run, mean; CPU seconds with its children); ``ratio``
+        (steady all / steady none), ``wall_ratio`` (wall all / wall none), ``in_run_overhead`` (gt / rgb of
+        the GT runs).
     """
     if frames < 3:
         raise ValueError("the ground-truth comparison needs at least 3 frames")
@@ -428,7 +440,8 @@ def gt_cost(scene: Path, setting: Setting, frames: int, repeats: int, size: tupl
         first = [run.ready_s + run.frames[0]["rgb"] + run.frames[0]["gt"] - data for run in group]
         out[gt] = {"start": statistics.fmean(run.ready_s for run in group), "rgb": rgb, "gt": data,
                    "steady": rgb + data, "first": statistics.fmean(first),
-                   "wall": statistics.fmean(run.wall_s for run in group)}
+                   "wall": statistics.fmean(run.wall_s for run in group),
+                   "cpu": statistics.fmean(run.cpu_s for run in group)}
     out["ratio"] = out["all"]["steady"] / out["none"]["steady"]
     out["wall_ratio"] = out["all"]["wall"] / out["none"]["wall"]
     out["in_run_overhead"] = out["all"]["gt"] / out["all"]["rgb"]

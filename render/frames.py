@@ -45,8 +45,8 @@ maps, deformed vertices) and another converts and compresses frame i-1's passes.
 
 from __future__ import annotations
 
+import contextlib
 import math
-import os
 import resource
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -58,7 +58,7 @@ import numpy as np
 from rgbd2scene.conventions import blender_pose_from_opencv
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.dataset.develop_frames import FrameDeveloper
-from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
+from rgbd2scene.groundtruth.background import BackgroundGroundTruth, Job
 from rgbd2scene.groundtruth.passes import depth_from_pass, gt_from_passes, passes_needed
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry, occlusion_maps
 from rgbd2scene.rendering import (
@@ -73,7 +73,7 @@ from rgbd2scene.rendering import (
 from rgbd2scene.scene.folder import SCENE_BLEND
 from rgbd2scene.scene.model import SceneDescription
 from rgbd2scene.scene.raw import raw_render_plan
-from rgbd2scene.worker_protocol import Render, frame_line, ready_line
+from rgbd2scene.worker_protocol import Render, frame_line, ready_line, resident_mb
 
 GT_MATERIAL = "rgbd2scene_gt_override"
 VIEWS = {"left": "_L", "right": "_R"}
@@ -151,13 +151,13 @@ class Renderer:
         self.description = description
         self.frames = int(frames)
         # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check).
-        # The model (open3d, the parts' geometry) loads in a thread meanwhile: it overlaps Blender's first render
+        # The model's maps come from a low-priority child process (groundtruth.background), started first: it
+        # loads the model (open3d, the parts' geometry) while Blender opens the scene
         self.from_model = bool(options.maps) and options.gt_source == "model"
-        self._model_gt = None
+        self.model_gt = None
         if self.from_model:
-            loader = ThreadPoolExecutor(max_workers=1)
-            self._model_gt = loader.submit(ModelGroundTruth.of_scene, description, scene_dir, self.frames, options.maps)
-            loader.shutdown(wait=False)  # the submitted load still runs to its end
+            self.model_gt = BackgroundGroundTruth(Job(description.to_dict(), str(scene_dir), self.frames,
+                                                      list(options.maps), str(out_dir), str(scratch)))
         blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
@@ -230,11 +230,6 @@ class Renderer:
         need_geometry = self.maps and (self.moving or cull) and not self.from_model
         self.geometry = SceneGeometry(description, scene_dir) if need_geometry else None
         self.view_masks = self._add_view_masks() if self.maps and cull and not self.from_model else []
-
-    @property
-    def model_gt(self) -> ModelGroundTruth | None:
-        """The scene model's ground truth (waits for it to load), None with ``--gt-source blender``."""
-        return None if self._model_gt is None else self._model_gt.result()
 
     def _add_view_masks(self) -> list[ViewMask]:
         """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group
@@ -484,38 +479,47 @@ def _check_pose(scene, camera, description: SceneDescription, index: int, camera
                               f"{np.abs(found - expected).max():.2e} (> {POSE_TOLERANCE})")
 
 
-def _rss_mb() -> float:
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
-    except (OSError, ValueError, IndexError):
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
 
 
-def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: list[int], say,
-               scratch: Path) -> dict[int, tuple[float, float]]:
+def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say) -> dict[int, tuple[float, float]]:
     """Every RGB frame of the chunk, pipelined: one thread develops frame i-1 (environment, auto exposure,
     sensor, PNGs; in frame order, so each frame's metering is there for the next) while Blender renders frame i.
-    With ground truth from the scene model (:class:`~rgbd2scene.groundtruth.model_maps.ModelGroundTruth`, no
-    data render) another thread computes and writes frame i's maps meanwhile, and a frame is done when both
-    are. Returns the (wall, CPU) seconds of the frames a data render still has to finish (Blender's passes)."""
-    model = renderer.from_model
+    With ground truth from the scene model (no data render) the child process ``renderer.model_gt``
+    (:class:`~rgbd2scene.groundtruth.background.BackgroundGroundTruth`) is asked for every frame's maps at the
+    start and writes them meanwhile, in the CPU time the render leaves idle; a frame is done (in frame order)
+    when its images and its maps are, and the render waits for the maps only after its last image. Returns
+    the (wall, CPU) seconds of the frames a data render still has to finish (Blender's passes)."""
+    model = renderer.model_gt
     spent: dict[int, tuple[float, float]] = {}
-
-    def write_gt(index: int) -> None:
-        renderer.model_gt.write(out_dir, index, scratch)
-
+    if model is not None:
+        model.submit(need_gt)
+    maps_here = set(need_gt) if model is not None else set()  # frames the child writes the maps of
     t_mark, c_mark = time.perf_counter(), _cpu_s()
-    with ThreadPoolExecutor(max_workers=1) as develop_pool, ThreadPoolExecutor(max_workers=1) as gt_pool:
-        developing: list[tuple[int, Future, Future | None]] = []
+    t_images = t_mark  # when the latest frame's images were done
+    waiting: list[tuple[int, float]] = []  # (frame, the seconds its images took), in frame order
+
+    def finish(block: bool) -> None:
+        """Send the done line of the frames at the front of ``waiting`` whose maps are written (of all of
+        them, waiting for the maps, when ``block``)."""
+        nonlocal t_mark, c_mark
+        blocked = time.perf_counter()  # the render waits for the maps only from here, and only when ``block``
+        while waiting and (block or waiting[0][0] not in maps_here or model.done(waiting[0][0])):
+            index, t_rgb = waiting.pop(0)
+            child = model.wait(index) if index in maps_here else None
+            now, cpu = time.perf_counter(), _cpu_s()
+            t_frame, c_frame = now - t_mark, cpu - c_mark + (child.cpu_s if child else 0.0)  # this frame's share
+            t_gt = now - max(blocked, t_mark) if block else 0.0  # the wait for the maps: what they added
+            t_mark, c_mark = now, cpu
+            say(frame_line(index, "done", t_frame, cpu=c_frame, rgb=t_rgb, gt=t_gt, rss=resident_mb(),
+                           **({"gt_rss": child.rss_mb} if child else {})))
+
+    with ThreadPoolExecutor(max_workers=1) as develop_pool:
+        developing: list[tuple[int, Future]] = []
         for index in need_rgb + [None]:
             if index is not None:
-                gt_job = gt_pool.submit(write_gt, index) if model and index in need_gt else None
                 # metering a chunk starts without (frames of this chunk are metered in turn by the thread)
                 for earlier in renderer.developer.missing_history(index, coming=need_rgb):
                     renderer.meter_frame(earlier)
@@ -523,29 +527,23 @@ def _rgb_phase(renderer: Renderer, out_dir: Path, need_rgb: list[int], need_gt: 
                 linear, depth = renderer.render_linear(index)
                 renderer.free_images()
                 developing.append((index, develop_pool.submit(renderer.developer.develop_frame, index, linear,
-                                                              depth), gt_job))
+                                                              depth)))
             while developing and (index is None or len(developing) > 1):
-                done_index, future, gt_job = developing.pop(0)
+                done_index, future = developing.pop(0)
                 future.result()
-                t_images = time.perf_counter()
-                if gt_job is not None:
-                    gt_job.result()
-                now, cpu = time.perf_counter(), _cpu_s()
-                t_frame, c_frame = now - t_mark, cpu - c_mark  # this frame's share
-                t_mark, c_mark = now, cpu
-                t_gt = now - t_images  # the wait for the model's maps: what the ground truth added
-                if done_index in need_gt and not model:  # the frame is finished by the data render
-                    spent[done_index] = t_frame, c_frame
-                    say(frame_line(done_index, "rgb", t_frame, cpu=c_frame, rss=_rss_mb()))
+                if done_index in need_gt and model is None:  # the frame is finished by the data render
+                    now, cpu = time.perf_counter(), _cpu_s()
+                    spent[done_index] = now - t_mark, cpu - c_mark
+                    t_mark, c_mark = now, cpu
+                    say(frame_line(done_index, "rgb", spent[done_index][0], cpu=spent[done_index][1],
+                                   rss=resident_mb()))
                 else:
-                    say(frame_line(done_index, "done", t_frame, cpu=c_frame, rgb=t_frame - t_gt, gt=t_gt,
-                                   rss=_rss_mb()))
-        if model:  # frames whose images are there already
-            for index in [i for i in need_gt if i not in set(need_rgb)]:
-                t0, c0 = time.perf_counter(), _cpu_s()
-                gt_pool.submit(write_gt, index).result()
-                t_gt = time.perf_counter() - t0
-                say(frame_line(index, "done", t_gt, cpu=_cpu_s() - c0, rgb=0.0, gt=t_gt, rss=_rss_mb()))
+                    now = time.perf_counter()
+                    waiting.append((done_index, now - max(t_images, t_mark)))
+                    t_images = now
+                    finish(block=False)
+    waiting += [(i, 0.0) for i in need_gt if i in maps_here and i not in set(need_rgb)]  # images there already
+    finish(block=True)
     return spent
 
 
@@ -558,15 +556,17 @@ def render_task(bpy, task: Render, say) -> None:
     description = SceneDescription.from_dict(task.description)
     options = RenderOptions(**task.render).validated()
     frames = int(task.frames or description.frames)
-    with ds.scratch_dir(out_dir) as scratch:
+    with ds.scratch_dir(out_dir) as scratch, contextlib.ExitStack() as stack:
         renderer = Renderer(bpy, scene_dir, out_dir, description, options, frames, scratch)
+        if renderer.model_gt is not None:  # the model's child process ends with the task
+            stack.enter_context(renderer.model_gt)
         say(ready_line(time.perf_counter() - t0, renderer.device))
         indices = range(max(task.start, 0), min(task.end or frames, frames))
         need_rgb = [i for i in indices if not ds.rgb_done(out_dir, i)]
         need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i, description.deforming)]
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
-        spent = _rgb_phase(renderer, out_dir, need_rgb, need_gt, say, scratch)
+        spent = _rgb_phase(renderer, need_rgb, need_gt, say)
         if renderer.from_model:
             return
         # Blender's passes (--gt-source blender, the cross-check of the model's maps): every data render after
@@ -594,4 +594,4 @@ def render_task(bpy, task: Render, say) -> None:
                     t_mark, c_mark = now, cpu
                     t_rgb, c_rgb = spent.get(done_index, (0.0, 0.0))
                     say(frame_line(done_index, "done", t_rgb + t_gt, cpu=c_rgb + c_gt, rgb=t_rgb, gt=t_gt,
-                                   rss=_rss_mb()))
+                                   rss=resident_mb()))

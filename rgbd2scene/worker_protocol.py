@@ -112,10 +112,22 @@ def ready_line(seconds: float, device: str) -> str:
     return f"ready {seconds:.3f}s device {device}"
 
 
+def resident_mb() -> float:
+    """This process's resident memory now (MB; its peak where ``/proc`` is missing)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    except (OSError, ValueError, IndexError):
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def frame_line(index: int, what: str, seconds: float | None = None, **stats: float) -> str:
-    """``what``: rgb, done or skipped, then its ``seconds``; ``stats`` in seconds except ``rss`` (MB)."""
+    """``what``: rgb, done or skipped, then its ``seconds``; ``stats`` in seconds except resident memory
+    (``rss``, ``gt_rss``: MB)."""
     parts = [f"frame {index} {what}"] + ([] if seconds is None else [f"{seconds:.3f}s"])
-    parts += [f"{k} {v:.0f}MB" if k == "rss" else f"{k} {v:.3f}s" for k, v in stats.items()]
+    parts += [f"{k} {v:.0f}MB" if k.endswith("rss") else f"{k} {v:.3f}s" for k, v in stats.items()]
     return " ".join(parts)
 
 

@@ -26,8 +26,10 @@ _INVALID = np.uint32(0xFFFFFFFF)
 
 def _rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """Open3D's ray layout (..., 6) float32: origin (broadcast to the directions) then direction."""
-    o = np.broadcast_to(np.asarray(origins, dtype=np.float64), np.shape(directions))
-    return np.concatenate([o, np.asarray(directions, dtype=np.float64)], axis=-1).astype(np.float32)
+    out = np.empty(np.shape(directions)[:-1] + (6,), np.float32)
+    out[..., :3] = np.asarray(origins, dtype=np.float64)  # rounded to float32 as astype rounds
+    out[..., 3:] = np.asarray(directions, dtype=np.float64)
+    return out
 
 
 #: Relative sizes of the direction nudges tried on a ray that Open3D misses at a vertex (float32 casts:
@@ -159,15 +161,21 @@ class Raycaster:
         """
         ids = np.asarray(triangle_ids)
         hit = ids >= 0
-        out = np.full(ids.shape + (3,), np.nan)
-        if not hit.any():
-            return out
-        tri = self.triangles[ids[hit]]
+        every = bool(hit.all())  # the usual case: no copies of the hits
+        if not every and not hit.any():
+            return np.full(ids.shape + (3,), np.nan)
+        tri = self.triangles[ids if every else ids[hit]]
+        uv = uvs if every else uvs[hit]
+        u, v = uv[..., 0:1], uv[..., 1:2]
         vn = self.vertex_normals
-        u, v = uvs[hit][:, 0:1], uvs[hit][:, 1:2]
-        n = (1.0 - u - v) * vn[tri[:, 0]] + u * vn[tri[:, 1]] + v * vn[tri[:, 2]]
+        n = (1.0 - u - v) * vn[tri[..., 0]]  # summed in place, in the same order: the same bits
+        n += u * vn[tri[..., 1]]
+        n += v * vn[tri[..., 2]]
         with np.errstate(invalid="ignore", divide="ignore"):
-            n /= np.linalg.norm(n, axis=1, keepdims=True)
+            n /= np.linalg.norm(n, axis=-1, keepdims=True)
+        if every:
+            return n
+        out = np.full(ids.shape + (3,), np.nan)
         out[hit] = n
         return out
 

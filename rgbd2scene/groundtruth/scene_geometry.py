@@ -2,11 +2,11 @@
 ``DATASET/geometry/`` and ``verify``'s ray casting of moving and deforming scenes.
 
 Every part's rest mesh is read from the scene folder (as the PLY stores it, the same float32 vertices Blender
-builds from), deformed by its :class:`~rgbd2scene.scene.deformation.Deformation` (the one formula, on the
-same area-weighted rest normals) and placed by its pose of the frame. Ray casts (Open3D, float32) report for
-every pixel the part's instance id, the triangle and the barycentric coordinates of the hit, so a surface
-point can be followed into another frame exactly: the same triangle, the same barycentric weights, that
-frame's vertices.
+builds from; cached by :mod:`~rgbd2scene.groundtruth.geometry_cache`), deformed by its
+:class:`~rgbd2scene.scene.deformation.Deformation` (the one formula, on the same area-weighted rest normals)
+and placed by its pose of the frame. Ray casts (Open3D, float32) report for every pixel the part's instance
+id, the triangle and the barycentric coordinates of the hit, so a surface point can be followed into another
+frame exactly: the same triangle, the same barycentric weights, that frame's vertices.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from rgbd2scene.conventions import invert_pose, transform_points
-from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.geometry.mesh import vertex_normals
 from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
+from rgbd2scene.groundtruth.geometry_cache import mesh_arrays
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
 
@@ -54,9 +54,8 @@ class SceneGeometry:
         self.description = description
         self.meshes: list[_PartMesh] = []
         for _, part in description.parts():
-            mesh = read_ply(Path(scene_dir) / part.geometry)
-            vertices = mesh.vertices.astype(np.float32).astype(np.float64)
-            triangles = np.asarray(mesh.triangles, dtype=np.int64)
+            stored, triangles = mesh_arrays(Path(scene_dir) / part.geometry)
+            vertices, triangles = stored.astype(np.float64), triangles.astype(np.int64)
             normals = basis = None
             if part.deformation is not None:
                 normals, basis = rest_normals(vertices, triangles), part.deformation.basis(vertices)
@@ -71,7 +70,12 @@ class SceneGeometry:
         self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
         self._static_normals: np.ndarray | None = None
+        self._corner_order: tuple[np.ndarray, np.ndarray] | None = None  # see _triangles_around
         self._lock = threading.RLock()  # the render worker asks from two threads
+
+    def _frame_key(self, frame: int) -> int:
+        """The key of ``frame``'s vertices: 0 for every frame of a static scene."""
+        return 0 if self.static else int(frame)
 
     def part_vertices(self, index: int, frame: int) -> np.ndarray:
         """World-frame vertices (N, 3) float64 of the ``index``-th part at ``frame``.
@@ -88,7 +92,7 @@ class SceneGeometry:
 
     def vertices(self, frame: int) -> np.ndarray:
         """World-frame vertices of every part at ``frame``, concatenated in model order (N, 3) float64."""
-        key = 0 if self.static else int(frame)
+        key = self._frame_key(frame)
         with self._lock:
             out = self._vertices.get(key)
             if out is None:
@@ -132,7 +136,7 @@ class SceneGeometry:
         """
         culled = (camera is not None and T_world_cam is not None
                   and any(np.array_equal(T_world_cam, e) for e in self._eye_poses(frame)))
-        key: tuple = (0 if self.static else int(frame),)
+        key: tuple = (self._frame_key(frame),)
         if culled:
             key += (camera,)
             if self.static:  # the camera moves: the view changes with the frame
@@ -149,19 +153,38 @@ class SceneGeometry:
             return rc
 
     def _normals(self, frame: int, subset: np.ndarray | None) -> np.ndarray | None:
-        """Angle-weighted vertex normals for a ray caster of ``frame``: a static scene's, once; a moving one's
-        from the triangles around ``subset`` only (every triangle sharing a vertex with one: exact at the
-        vertices a cast against ``subset`` can hit); None (the caster computes them) for the whole scene."""
-        if self.static:
-            if self._static_normals is None:
-                self._static_normals = vertex_normals(self.vertices(frame), self.triangles, "angle")
-            return self._static_normals
+        """Angle-weighted vertex normals for a ray caster of ``frame``.
+
+        For a cast against ``subset``: those of the vertices of its triangles (zero elsewhere), computed on the
+        triangles around them only (every triangle sharing a vertex with one, in the mesh's order, so each
+        vertex's sum has the same terms in the same order as over the whole mesh: the same bits), a few
+        thousand triangles instead of the whole mesh. For the whole scene: a static scene's, once; None for a
+        moving one (the caster computes them).
+        """
+        vertices = self.vertices(frame)
         if subset is None:
-            return None
-        seen = np.zeros(len(self.vertices(frame)), bool)
-        seen[self.triangles[subset]] = True
-        around = self.triangles[seen[self.triangles].any(axis=1)]
-        return vertex_normals(self.vertices(frame), around, "angle")
+            if self.static and self._static_normals is None:
+                self._static_normals = vertex_normals(vertices, self.triangles, "angle")
+            return self._static_normals if self.static else None
+        around = self.triangles[self._triangles_around(subset)]
+        used, corners = np.unique(around, return_inverse=True)
+        out = np.zeros((len(vertices), 3))
+        out[used] = vertex_normals(vertices[used], corners.reshape(-1, 3), "angle")
+        return out
+
+    def _triangles_around(self, subset: np.ndarray) -> np.ndarray:
+        """Indices of every triangle sharing a vertex with one of ``subset``, ascending (from each vertex's
+        list of triangles, made once: the mesh's connectivity is the same every frame)."""
+        if self._corner_order is None:
+            corner_vertices = self.triangles.ravel()
+            order = np.argsort(corner_vertices, kind="stable")
+            starts = np.searchsorted(corner_vertices[order], np.arange(self._offsets[-1] + 1))
+            self._corner_order = order // 3, starts
+        triangle_of, starts = self._corner_order
+        vertices = np.unique(self.triangles[subset])
+        counts = starts[vertices + 1] - starts[vertices]
+        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        return np.unique(triangle_of[np.repeat(starts[vertices], counts) + within])
 
     def view_support(self, index: int, frame: int, cameras) -> np.ndarray:
         """Indices of the ``index``-th part's vertices that a render of ``frame``'s two eyes (``cameras``:
@@ -206,9 +229,15 @@ class SceneGeometry:
         u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
         weights = (1.0 - u - v, u, v)
 
+        followed: dict[int, np.ndarray] = {}  # by vertex key: a static scene's points are the same every frame
+
         def at(frame: int) -> np.ndarray:
-            vertices = self.vertices(frame)
-            return sum(w * vertices[corners[..., k]] for k, w in enumerate(weights))
+            key = self._frame_key(frame)
+            if key not in followed:
+                vertices = self.vertices(frame)
+                followed[key] = sum(w * vertices[corners[..., k]] for k, w in enumerate(weights))
+                followed[key].flags.writeable = False  # shared by the callers
+            return followed[key]
 
         return at
 

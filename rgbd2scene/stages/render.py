@@ -342,7 +342,8 @@ def render_dataset(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
             "rgb_seconds_per_frame": mean("rgb"), "gt_seconds_per_frame": mean("gt"),
             "wall_seconds_per_frame": wall / len(done) if done else None,
             "worker_start_seconds": sum(starts) / len(starts) if starts else None,
-            "max_rss_mb": max((d.get("rss", 0.0) for d in done), default=None)}
+            "max_rss_mb": max((d.get("rss", 0.0) for d in done), default=None),
+            "gt_process_max_rss_mb": max((d["gt_rss"] for d in done if "gt_rss" in d), default=None)}
 
 
 def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOptions | None = None, *,
