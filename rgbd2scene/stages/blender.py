@@ -171,9 +171,13 @@ class ServingWorker:
             t0 = time.perf_counter()
             start = self.log.seek(0, os.SEEK_END)
             try:
-                self.proc.stdin.write(task.to_json() + "\n")
-                self.proc.stdin.flush()
-                events, end = _follow(self.proc.stdout, on_event, t0)
+                try:
+                    self.proc.stdin.write(task.to_json() + "\n")
+                    self.proc.stdin.flush()
+                except BrokenPipeError:  # it died since it was last seen alive
+                    events, end = [], None
+                else:
+                    events, end = _follow(self.proc.stdout, on_event, t0)
             except BaseException:
                 _stop(self.proc)
                 raise
