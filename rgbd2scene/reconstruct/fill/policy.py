@@ -84,6 +84,7 @@ import cv2
 import numpy as np
 from scipy import ndimage as ndi
 
+from rgbd2scene.blas import single_blas_thread
 from rgbd2scene.capture.sensors import KINECT_V1, Sensor
 from rgbd2scene.reconstruct.fill.holes import (
     classify_holes,
@@ -325,12 +326,14 @@ def _base_fill(name: str, depth, rgb, mask, across) -> np.ndarray:
 
 def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
     """Each named base fill (:func:`_base_fill`) of its ``(mask, across)`` in ``jobs``, the solves side by side
-    in threads: the sparse solvers release the GIL, so on two cores they overlap; each result is the same."""
-    if len(jobs) < 2:
-        return {name: _base_fill(name, depth, rgb, *job) for name, job in jobs.items()}
-    with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
-        futures = {name: pool.submit(_base_fill, name, depth, rgb, *job) for name, job in jobs.items()}
-        return {name: future.result() for name, future in futures.items()}
+    in threads, each on one BLAS thread (:mod:`rgbd2scene.blas`): the sparse solvers release the GIL, so on two
+    cores they overlap (TUM frame: the fill 0.70 s wall instead of 1.0 s); each result is the same."""
+    with single_blas_thread():
+        if len(jobs) < 2:
+            return {name: _base_fill(name, depth, rgb, *job) for name, job in jobs.items()}
+        with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
+            futures = {name: pool.submit(_base_fill, name, depth, rgb, *job) for name, job in jobs.items()}
+            return {name: future.result() for name, future in futures.items()}
 
 
 def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int, coverage: float, copies: int):
