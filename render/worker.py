@@ -116,8 +116,9 @@ def run_text(text: str, where: str, say) -> int:
 
 
 def reset_blender() -> None:
-    """Back to the state of a fresh process: factory settings (preferences included), no data, no render
-    engine's persistent data (with it, the Normal pass depends on what was rendered before)."""
+    """Back to the state of a fresh process: factory settings (preferences such as the GPU devices included),
+    no data-blocks, images or render engine data left from the task before (with persistent data, the Normal
+    pass of a render once depended on what the process had rendered before); the heap's free pages returned."""
     import bpy
 
     bpy.ops.wm.read_factory_settings(use_empty=False)
@@ -148,12 +149,18 @@ def peak_rss_mb(reset: bool = False) -> float:
 
 
 def serve(say) -> int:
-    """Run the tasks of stdin's lines one after the other until stdin closes; exit status 0."""
+    """Run the tasks of stdin's lines one after the other until stdin closes (exit status 0), or until Blender
+    fails to reset between them (1)."""
     peak_rss_mb(reset=True)
     for number, text in enumerate(sys.stdin, 1):
         status = run_text(text, f"stdin line {number}", say)
-        if "bpy" in sys.modules:
-            reset_blender()
+        try:
+            if "bpy" in sys.modules:
+                reset_blender()
+        except Exception:  # noqa: BLE001 - the task is done; a worker that cannot reset ends (the next starts fresh)
+            traceback.print_exc()
+            say(end_line(status, peak_rss_mb()))
+            return 1
         say(end_line(status, peak_rss_mb(reset=True)))
     return 0
 

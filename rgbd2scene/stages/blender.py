@@ -4,8 +4,8 @@ Every stage that needs Blender (building ``scene.blend``, rendering frames) writ
 the action and its payload: the scene model, the options; :mod:`rgbd2scene.worker_protocol`) and runs
 ``python -m render.worker TASK.json`` through :func:`run_task`. The worker answers on its stdout with the
 lines of :data:`PROTOCOL` only (Blender's own output goes to stderr, kept for the error message). A fresh
-process per task bounds Blender's memory and keeps ``bpy`` out of the calling process (a CLI, a test, a
-benchmark or a Dask worker).
+process per task (outside batch builds: below) bounds Blender's memory and keeps ``bpy`` out of the calling
+process (a CLI, a test, a benchmark or a Dask worker).
 
 A worker never outlives its parent (:func:`tie_to_parent`): killed with SIGKILL (the out-of-memory killer, a
 scheduler), a caller takes its worker with it, instead of leaving it to render on unowned until its next
