@@ -117,3 +117,42 @@ def test_a_bad_task_leaves_the_worker_serving(scenes, tmp_path):
             assert blender._local.worker is worker and worker.tasks == 2
     finally:
         close_workers()
+
+
+#: A local pool's thread keeps its worker after a chunk; the driver then waits (the worker idle) to be killed.
+IDLE_DRIVER = """
+import sys, time, concurrent.futures
+from rgbd2scene.rendering import RenderOptions
+from rgbd2scene.stages.render import prepare_render
+from rgbd2scene.batch.tasks import render_chunk
+job = prepare_render(sys.argv[1], sys.argv[2], RenderOptions(size=(64, 32), samples=1, denoise="none", gt="none"))
+pool = concurrent.futures.ThreadPoolExecutor(max_workers=1)
+print(pool.submit(render_chunk, job, job.todo[:1]).result().ok, flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs /proc (Linux)")
+def test_an_idle_reused_worker_ends_with_its_parent(scenes, tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    from tests.test_worker_lifetime import _alive, _workers_of
+
+    proc = subprocess.Popen([sys.executable, "-c", IDLE_DRIVER, str(scenes[0]), str(tmp_path / "ds")],
+                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "True"  # the chunk is done; its worker waits for the next
+        workers = _workers_of(proc.pid)
+        assert len(workers) == 1
+    finally:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+    deadline = time.monotonic() + 5.0
+    while _alive(workers[0]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    alive = _alive(workers[0])
+    if alive:
+        os.kill(workers[0], signal.SIGKILL)
+    assert not alive
