@@ -156,3 +156,29 @@ def test_an_idle_reused_worker_ends_with_its_parent(scenes, tmp_path):
     if alive:
         os.kill(workers[0], signal.SIGKILL)
     assert not alive
+
+
+def test_closing_terminates_a_busy_worker_without_waiting(scenes, tmp_path):
+    """An interrupted build closes its engine while a chunk still renders: the worker is terminated and its
+    task fails, instead of the close waiting for the chunk."""
+    import threading
+    import time
+
+    job = prepare_render(scenes[0], tmp_path / "ds", RenderOptions(size=(64, 32), samples=20000, adaptive=False,
+                                                                   denoise="none", gt="none"))
+    started, outcome = threading.Event(), {}
+
+    def render() -> None:
+        with reusing_workers():
+            try:
+                run_task(job.task(job.todo), lambda event: started.set() if event.kind == "ready" else None)
+            except RenderError as exc:
+                outcome["error"] = str(exc)
+
+    thread = threading.Thread(target=render)
+    thread.start()
+    assert started.wait(120)
+    t0 = time.monotonic()
+    assert close_workers() == 1
+    thread.join(60)
+    assert time.monotonic() - t0 < 15 and "exit status -15" in outcome["error"]

@@ -236,11 +236,17 @@ def reusing_workers():
 
 
 def close_workers() -> int:
-    """End every serving worker of this process (the engines call it when they close); how many there were."""
+    """End every serving worker of this process (the engines call it when they close); how many there were. An
+    idle one finishes its loop; one still running a task (a build interrupted) is terminated, not waited for."""
     with _workers_lock:
         workers = list(_workers)
         _workers.clear()
     for worker in workers:
-        with worker.lock:
-            worker.close()
+        if worker.lock.acquire(blocking=False):
+            try:
+                worker.close()
+            finally:
+                worker.lock.release()
+        else:
+            _stop(worker.proc)
     return len(workers)
