@@ -27,14 +27,15 @@ Usage: ``python benchmarks/bench_batch.py [--quick] [--parallel] [--repeats N] [
    submitted through ``--scheduler`` so that this script can ask the worker afterwards): each chunk's Blender
    worker peak RSS (``ru_maxrss`` from ``wait4``) and the Dask worker process's own peak RSS; then the same
    sequence rendered in one chunk of 60 for comparison.
-3. **Reused workers** (``4 sequences x 2 chunks of 2 frames`` at 256x128 of the bundled sample, render
-   defaults): the 8 chunks, every sequence's first chunk then every second one (so each chunk follows another
-   scene), each in a fresh Blender process (``run_task``, as batch builds did before) and all in one long-lived
-   worker (``reusing_workers``, as batch builds do now), alternating over ``--repeats`` rounds. Wall and CPU
-   seconds (all processes: this one and its Blender workers), the ratio of the medians and every chunk's peak
-   memory; every output file must be byte-identical between the two. Then one worker renders ``--reuse-tasks``
-   chunks in turn (the four scenes' first chunks over and over): its peak memory during each task and its
-   resident memory after each, which must not grow.
+3. **Reused workers** (``4 sequences x 2 chunks of 2 frames`` at 256x128 of the bundled sample, render defaults):
+   whole builds (``--jobs 1``) with every Blender task in a fresh process (``reusing_workers`` patched to do
+   nothing) and with reused workers, alternating; then the 8 chunks alone, every sequence's first chunk then every
+   second one (so each chunk follows another scene), each in a fresh Blender process (``run_task``, as batch builds
+   did before) and all in one long-lived worker (``reusing_workers``, as batch builds do now), alternating over
+   ``--repeats`` rounds. Wall and CPU seconds (all processes: this one and its Blender workers), the ratio of the
+   medians and every chunk's peak memory; every output file must be byte-identical between the two. Then one worker
+   renders ``--reuse-tasks`` chunks in turn (the four scenes' first chunks over and over): its peak memory during
+   each task and its resident memory after each, which must not grow.
 
 ``--quick`` (about 3 minutes): one capture, 2 sequences of 3 frames, one round, 10 memory frames in chunks of 4;
 report in ``bench_out/batch/batch.md``. The full run takes about 10 minutes on an idle 2-core machine (``--parallel``
@@ -53,6 +54,7 @@ import shutil
 import statistics
 import sys
 import time
+import unittest.mock
 from pathlib import Path
 
 import yaml
@@ -272,14 +274,49 @@ def _render_chunks(scenes: list[Path], out: Path, reuse: bool) -> tuple[float, f
     return time.perf_counter() - t0, _cpu_s() - c0, peaks
 
 
+def _whole_build(config_path: Path, root: Path, reuse: bool) -> tuple[float, float, dict]:
+    """(wall s, CPU s, each sequence's ground-truth and image checksums) of a build from an empty ROOT, its units
+    in reused workers or (``reuse`` False: ``reusing_workers`` made a no-op) each in a fresh Blender process."""
+    shutil.rmtree(root, ignore_errors=True)
+    fresh = unittest.mock.patch.object(blender, "reusing_workers", contextlib.nullcontext)
+    with contextlib.nullcontext() if reuse else fresh:
+        t0, c0 = time.perf_counter(), _cpu_s()
+        batch_build(config_path, root)
+        wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
+    return wall, cpu, {r.sequence: (r.gt_sha256, r.rgb_sha256) for r in read_manifest(root)}
+
+
+def _build_table(runs: dict[str, list[tuple[float, float]]], base: str) -> list[str]:
+    """Markdown rows of ``runs`` (name -> (wall, CPU) per run): the runs, medians and ratios to ``base``."""
+    base_wall = statistics.median(w for w, _ in runs[base])
+    base_cpu = statistics.median(c for _, c in runs[base])
+    lines = ["| workers | runs: wall s | runs: CPU s | median wall s | median CPU s | wall ratio | CPU ratio |",
+             "|---|---|---|---|---|---|---|"]
+    for name, values in runs.items():
+        wall = statistics.median(w for w, _ in values)
+        cpu = statistics.median(c for _, c in values)
+        lines.append(f"| {name} | {', '.join(f'{w:.1f}' for w, _ in values)} | "
+                     f"{', '.join(f'{c:.1f}' for _, c in values)} | {wall:.1f} | {cpu:.1f} | "
+                     f"{wall / base_wall:.2f} | {cpu / base_cpu:.2f} |")
+    return lines
+
+
 def reuse(args) -> list[str]:
     sequences, frames = 4, 4
-    config_path = write_config(WORK / "reuse.yaml", 1, sequences, frames)
-    root = WORK / "roots" / "reuse"
-    shutil.rmtree(root, ignore_errors=True)
-    batch_build(config_path, root)  # the scenes
-    scenes = sorted((root / "scenes").iterdir())
-    print(f"reused workers: {len(scenes)} scenes x 2 chunks of 2 frames at {SIZE}, {args.repeats} rounds", flush=True)
+    config_path = write_config(WORK / "reuse.yaml", 1, sequences, frames, chunk=2)
+    print(f"reused workers: whole builds of 1 capture x {sequences} sequences x {frames} frames in chunks of 2, "
+          f"{args.repeats} rounds", flush=True)
+    builds: dict[str, list[tuple[float, float]]] = {"a fresh process per unit": [], "reused workers": []}
+    sums = {}
+    for r in range(args.repeats):
+        for name in (list(builds) if r % 2 == 0 else list(builds)[::-1]):
+            wall, cpu, sums[name] = _whole_build(config_path, WORK / "roots" / f"reuse_{name.split()[0]}",
+                                                 name == "reused workers")
+            builds[name].append((wall, cpu))
+            print(f"  {name:24s} wall {wall:6.1f} s  CPU {cpu:6.1f} s  load {os.getloadavg()[0]:.1f}", flush=True)
+    same_builds = len({repr(sorted(v.items())) for v in sums.values()}) == 1
+    scenes = sorted((WORK / "roots" / "reuse_reused" / "scenes").iterdir())
+    print(f"  the chunks alone: {len(scenes)} scenes x 2 chunks of 2 frames at {SIZE}", flush=True)
     runs: dict[str, list[tuple[float, float]]] = {"fresh worker per chunk": [], "one reused worker": []}
     rss: dict[str, list[float]] = {}
     outputs = {}
@@ -293,20 +330,18 @@ def reuse(args) -> list[str]:
             print(f"  {name:24s} wall {wall:6.1f} s  CPU {cpu:6.1f} s  load {os.getloadavg()[0]:.1f}", flush=True)
     same = len({repr(sorted((k, hash(v)) for d in o.values() for k, v in d.items())) for o in outputs.values()}) == 1
     files = sum(len(d) for d in next(iter(outputs.values())).values())
-    fresh_wall = statistics.median(w for w, _ in runs["fresh worker per chunk"])
-    fresh_cpu = statistics.median(c for _, c in runs["fresh worker per chunk"])
     lines = [f"## 3. Reused Blender workers: {len(scenes)} sequences x 2 chunks of 2 frames at {SIZE}", "",
-             "The same 8 render chunks (every sequence's first chunk, then every second one: each chunk follows "
-             "another scene), each in a fresh Blender process or all in one long-lived worker; rounds alternate. "
-             "Wall and CPU seconds (this process and its Blender workers), medians and the ratio reused / fresh.",
-             "", "| workers | runs: wall s | runs: CPU s | median wall s | median CPU s | wall ratio | CPU ratio |",
-             "|---|---|---|---|---|---|---|"]
-    for name, values in runs.items():
-        wall = statistics.median(w for w, _ in values)
-        cpu = statistics.median(c for _, c in values)
-        lines.append(f"| {name} | {', '.join(f'{w:.1f}' for w, _ in values)} | "
-                     f"{', '.join(f'{c:.1f}' for _, c in values)} | {wall:.1f} | {cpu:.1f} | "
-                     f"{wall / fresh_wall:.2f} | {cpu / fresh_cpu:.2f} |")
+             f"Whole builds (`--jobs 1`, from an empty ROOT: the mesh, {sequences} scene builds and "
+             f"{2 * sequences} render chunks, checksums, contact sheets), every unit's Blender task in a fresh "
+             "process (as before) or in the thread's reused worker; rounds alternate. Wall and CPU seconds (this "
+             "process and its Blender workers), medians and the ratio to fresh processes.", "",
+             *_build_table(builds, "a fresh process per unit"), "",
+             f"Manifest checksums (ground truth and images) {'identical' if same_builds else 'DIFFER'} between "
+             "the builds.", "",
+             "The 8 render chunks alone, with the scenes of the last build (every sequence's first chunk, then every "
+             "second one: each chunk follows another scene), each in a fresh Blender process or all in one "
+             "long-lived worker; rounds alternate.", "",
+             *_build_table(runs, "fresh worker per chunk")]
     peaks = rss["one reused worker"]
     lines += ["", f"Output files (PNG, npz of both eyes, {files} in all) "
               f"{'byte-identical' if same else 'DIFFER'} between the two.", "",
@@ -314,7 +349,7 @@ def reuse(args) -> list[str]:
               f"{', '.join(f'{p:.0f}' for p in rss['fresh worker per chunk'])}; the reused worker "
               f"{', '.join(f'{p:.0f}' for p in peaks)}."]
     lines += ["", *_reused_memory(scenes, args.reuse_tasks)]
-    if not same:
+    if not (same and same_builds):
         raise SystemExit("outputs differ between fresh and reused workers")
     return lines
 
