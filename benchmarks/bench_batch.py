@@ -2,7 +2,7 @@
 """Batch benchmark: frames per hour of ``rgbd2scene dataset`` on a local pool and a local Dask cluster, against
 the same work done by plain stage calls, and the memory of a long sequence.
 
-Usage: ``python benchmarks/bench_batch.py [--quick] [--parallel] [--repeats N] [--out MD]``
+Usage: ``python benchmarks/bench_batch.py [--quick] [--parallel] [--repeats N] [--sections ...] [--out MD]``
 
 1. **Throughput** (``2 captures x 2 sequences x 6 frames`` at 256x128, render defaults: 1 spp + OIDN, all
    ground truth): the bundled sample ``data_samples/tissue`` and the TUM office frame from
@@ -27,6 +27,15 @@ Usage: ``python benchmarks/bench_batch.py [--quick] [--parallel] [--repeats N] [
    submitted through ``--scheduler`` so that this script can ask the worker afterwards): each chunk's Blender
    worker peak RSS (``ru_maxrss`` from ``wait4``) and the Dask worker process's own peak RSS; then the same
    sequence rendered in one chunk of 60 for comparison.
+3. **Reused workers** (``4 sequences x 2 chunks of 2 frames`` at 256x128 of the bundled sample, render defaults):
+   whole builds (``--jobs 1``) with every Blender task in a fresh process (``reusing_workers`` patched to do
+   nothing) and with reused workers, alternating; then the 8 chunks alone, every sequence's first chunk then every
+   second one (so each chunk follows another scene), each in a fresh Blender process (``run_task``, as batch builds
+   did before) and all in one long-lived worker (``reusing_workers``, as batch builds do now), alternating over
+   ``--repeats`` rounds. Wall and CPU seconds (all processes: this one and its Blender workers), the ratio of the
+   medians and every chunk's peak memory; every output file must be byte-identical between the two. Then one worker
+   renders ``--reuse-tasks`` chunks in turn (the four scenes' first chunks over and over): its peak memory during
+   each task and its resident memory after each, which must not grow.
 
 ``--quick`` (about 3 minutes): one capture, 2 sequences of 3 frames, one round, 10 memory frames in chunks of 4;
 report in ``bench_out/batch/batch.md``. The full run takes about 10 minutes on an idle 2-core machine (``--parallel``
@@ -37,6 +46,7 @@ settings: builds alternate so that load changes hit every engine alike, but they
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import resource
@@ -44,6 +54,7 @@ import shutil
 import statistics
 import sys
 import time
+import unittest.mock
 from pathlib import Path
 
 import yaml
@@ -59,6 +70,8 @@ from rgbd2scene.batch.run import BuildOptions, build_dataset  # noqa: E402
 from rgbd2scene.batch.tasks import build_mesh  # noqa: E402
 from rgbd2scene.pictures.contact_sheet import write_frame_sheet  # noqa: E402
 from rgbd2scene.reconstruct import pipeline  # noqa: E402, F401  (imported before timing, as the driver has it)
+from rgbd2scene.rendering import RenderOptions  # noqa: E402
+from rgbd2scene.stages import blender  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
 from rgbd2scene.stages.scene import build_scene_folder, load_mesh_folder  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
@@ -228,15 +241,176 @@ def memory(args) -> list[str]:
             "build s |", "|---|---|---|---|---|---|", *rows]
 
 
+def _dataset_bytes(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.suffix in (".png", ".npz")}
+
+
+def _vm_rss_mb(pid: int) -> float:
+    status = Path(f"/proc/{pid}/status").read_text()
+    return next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmRSS:")) / 1024.0
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its children waited for."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def _render_chunks(scenes: list[Path], out: Path, reuse: bool) -> tuple[float, float, list[float]]:
+    """Render every chunk of ``scenes`` into ``out``: (wall s, CPU s, each chunk's peak MB)."""
+    from rgbd2scene.stages.render import prepare_render
+
+    shutil.rmtree(out, ignore_errors=True)
+    options = RenderOptions(size=tuple(int(v) for v in SIZE.split("x")), chunk=2)
+    jobs = [prepare_render(scene, out / scene.name, options) for scene in scenes]
+    t0, c0 = time.perf_counter(), _cpu_s()
+    peaks = []
+    with blender.reusing_workers() if reuse else contextlib.nullcontext():
+        for chunk in range(2):
+            for job in jobs:
+                peaks.append(blender.run_task(job.task(job.chunks()[chunk])).peak_rss_mb)
+    blender.close_workers()  # waited for: its CPU time counts
+    return time.perf_counter() - t0, _cpu_s() - c0, peaks
+
+
+def _whole_build(config_path: Path, root: Path, reuse: bool) -> tuple[float, float, dict]:
+    """(wall s, CPU s, each sequence's ground-truth and image checksums) of a build from an empty ROOT, its units
+    in reused workers or (``reuse`` False: ``reusing_workers`` made a no-op) each in a fresh Blender process."""
+    shutil.rmtree(root, ignore_errors=True)
+    fresh = unittest.mock.patch.object(blender, "reusing_workers", contextlib.nullcontext)
+    with contextlib.nullcontext() if reuse else fresh:
+        t0, c0 = time.perf_counter(), _cpu_s()
+        batch_build(config_path, root)
+        wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
+    return wall, cpu, {r.sequence: (r.gt_sha256, r.rgb_sha256) for r in read_manifest(root)}
+
+
+def _build_table(runs: dict[str, list[tuple[float, float]]], base: str) -> list[str]:
+    """Markdown rows of ``runs`` (name -> (wall, CPU) per run): the runs, medians and ratios to ``base``."""
+    base_wall = statistics.median(w for w, _ in runs[base])
+    base_cpu = statistics.median(c for _, c in runs[base])
+    lines = ["| workers | runs: wall s | runs: CPU s | median wall s | median CPU s | wall ratio | CPU ratio |",
+             "|---|---|---|---|---|---|---|"]
+    for name, values in runs.items():
+        wall = statistics.median(w for w, _ in values)
+        cpu = statistics.median(c for _, c in values)
+        lines.append(f"| {name} | {', '.join(f'{w:.1f}' for w, _ in values)} | "
+                     f"{', '.join(f'{c:.1f}' for _, c in values)} | {wall:.1f} | {cpu:.1f} | "
+                     f"{wall / base_wall:.2f} | {cpu / base_cpu:.2f} |")
+    return lines
+
+
+def reuse(args) -> list[str]:
+    sequences, frames = 4, 4
+    config_path = write_config(WORK / "reuse.yaml", 1, sequences, frames, chunk=2)
+    print(f"reused workers: whole builds of 1 capture x {sequences} sequences x {frames} frames in chunks of 2, "
+          f"{args.repeats} rounds", flush=True)
+    builds: dict[str, list[tuple[float, float]]] = {"a fresh process per unit": [], "reused workers": []}
+    sums = {}
+    for r in range(args.repeats):
+        for name in (list(builds) if r % 2 == 0 else list(builds)[::-1]):
+            wall, cpu, sums[name] = _whole_build(config_path, WORK / "roots" / f"reuse_{name.split()[0]}",
+                                                 name == "reused workers")
+            builds[name].append((wall, cpu))
+            print(f"  {name:24s} wall {wall:6.1f} s  CPU {cpu:6.1f} s  load {os.getloadavg()[0]:.1f}", flush=True)
+    same_builds = len({repr(sorted(v.items())) for v in sums.values()}) == 1
+    scenes = sorted((WORK / "roots" / "reuse_reused" / "scenes").iterdir())
+    print(f"  the chunks alone: {len(scenes)} scenes x 2 chunks of 2 frames at {SIZE}", flush=True)
+    runs: dict[str, list[tuple[float, float]]] = {"fresh worker per chunk": [], "one reused worker": []}
+    rss: dict[str, list[float]] = {}
+    outputs = {}
+    for r in range(args.repeats):
+        for name in (list(runs) if r % 2 == 0 else list(runs)[::-1]):
+            out = WORK / "reuse_out" / name.split()[0]
+            wall, cpu, peaks = _render_chunks(scenes, out, name != "fresh worker per chunk")
+            runs[name].append((wall, cpu))
+            rss[name] = peaks
+            outputs[name] = {s.name: _dataset_bytes(out / s.name) for s in scenes}
+            print(f"  {name:24s} wall {wall:6.1f} s  CPU {cpu:6.1f} s  load {os.getloadavg()[0]:.1f}", flush=True)
+    same = len({repr(sorted((k, hash(v)) for d in o.values() for k, v in d.items())) for o in outputs.values()}) == 1
+    files = sum(len(d) for d in next(iter(outputs.values())).values())
+    lines = [f"## 3. Reused Blender workers: {len(scenes)} sequences x 2 chunks of 2 frames at {SIZE}", "",
+             f"Whole builds (`--jobs 1`, from an empty ROOT: the mesh, {sequences} scene builds and "
+             f"{2 * sequences} render chunks, checksums, contact sheets), every unit's Blender task in a fresh "
+             "process (as before) or in the thread's reused worker; rounds alternate. Wall and CPU seconds (this "
+             "process and its Blender workers), medians and the ratio to fresh processes.", "",
+             *_build_table(builds, "a fresh process per unit"), "",
+             f"Manifest checksums (ground truth and images) {'identical' if same_builds else 'DIFFER'} between "
+             "the builds.", "",
+             "The 8 render chunks alone, with the scenes of the last build (every sequence's first chunk, then every "
+             "second one: each chunk follows another scene), each in a fresh Blender process or all in one "
+             "long-lived worker; rounds alternate.", "",
+             *_build_table(runs, "fresh worker per chunk")]
+    peaks = rss["one reused worker"]
+    lines += ["", f"Output files (PNG, npz of both eyes, {files} in all) "
+              f"{'byte-identical' if same else 'DIFFER'} between the two.", "",
+              "Peak memory of each chunk (last round, MB): fresh workers "
+              f"{', '.join(f'{p:.0f}' for p in rss['fresh worker per chunk'])}; the reused worker "
+              f"{', '.join(f'{p:.0f}' for p in peaks)}."]
+    lines += ["", *_reused_memory(scenes, args.reuse_tasks)]
+    if not (same and same_builds):
+        raise SystemExit("outputs differ between fresh and reused workers")
+    return lines
+
+
+def _reused_memory(scenes: list[Path], tasks: int) -> list[str]:
+    """One reused worker over ``tasks`` chunks: its peak and resident memory per task (a markdown paragraph)."""
+    from rgbd2scene.stages.render import prepare_render
+
+    out = WORK / "reuse_out" / "memory"
+    shutil.rmtree(out, ignore_errors=True)
+    options = RenderOptions(size=tuple(int(v) for v in SIZE.split("x")), chunk=2, frames=2)
+    peaks, resident = [], []
+    with blender.reusing_workers():
+        for k in range(tasks):
+            job = prepare_render(scenes[k % len(scenes)], out / f"{k:03d}", options)
+            peaks.append(blender.run_task(job.task(job.chunks()[0])).peak_rss_mb)
+            resident.append(_vm_rss_mb(blender._local.worker.proc.pid))
+    blender.close_workers()
+    print(f"  reused worker over {tasks} tasks: peaks {[round(p) for p in peaks]}, resident "
+          f"{[round(m) for m in resident]} MB", flush=True)
+    half = tasks // 2
+    return [f"Memory of one reused worker over {tasks} chunks of 2 frames (the four scenes in turn), MB. Peak "
+            f"during each task: {', '.join(f'{p:.0f}' for p in peaks)}; resident after each task (Blender reset, "
+            f"free heap returned): {', '.join(f'{m:.0f}' for m in resident)}. Mean resident, first half "
+            f"{statistics.mean(resident[:half]):.0f}, second half {statistics.mean(resident[half:]):.0f}."]
+
+
+SECTIONS = {"throughput": throughput, "memory": memory, "reuse": reuse}
+
+
+def merge_report(path: Path, header: list[str], sections: dict[str, list[str]]) -> str:
+    """The report: ``header``, then every ``## N.`` section of ``path`` with the ones run now replacing theirs."""
+    old: dict[str, list[str]] = {}
+    if path.is_file():
+        current = None
+        for line in path.read_text().splitlines():
+            if line.startswith("## "):
+                current = line.split(".")[0]
+                old[current] = []
+            if current is not None and not line.startswith("Benchmark wall time"):
+                old[current].append(line)
+    for lines in sections.values():
+        old[lines[0].split(".")[0]] = lines + [""]
+    body = [line for key in sorted(old) for line in old[key]]
+    return "\n".join(header + body)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="about 3 minutes: smaller builds, one round")
     ap.add_argument("--parallel", action="store_true", help="also builds with 2 units at once (--jobs 2, --workers 2)")
     ap.add_argument("--repeats", type=int, default=None, help="rounds of the three engines (default 2, quick 1)")
+    ap.add_argument("--reuse-tasks", type=int, default=None, help="tasks of the reused worker's memory series "
+                    "(default 16, quick 6)")
+    ap.add_argument("--sections", default=",".join(SECTIONS), help="which sections to run (the report keeps the "
+                    "others' last figures); default all")
     ap.add_argument("--out", default=None, help="markdown report (default benchmarks/results/batch.md, quick: "
                     "bench_out/batch/batch.md; '' to skip)")
     args = ap.parse_args()
     args.repeats = args.repeats or (1 if args.quick else 2)
+    args.reuse_tasks = args.reuse_tasks or (6 if args.quick else 16)
     out = args.out if args.out is not None else str(
         WORK / "batch.md" if args.quick else ROOT / "benchmarks" / "results" / "batch.md")
     versions = software_versions()
@@ -247,13 +421,17 @@ def main() -> None:
                 "quick": args.quick, "load average at start": f"{os.getloadavg()[0]:.1f}"}
     print("settings: " + ", ".join(f"{k}: {v}" for k, v in settings.items()), flush=True)
     t0 = time.perf_counter()
-    parts = [f"# Batch benchmark (`benchmarks/bench_batch.py{' --quick' if args.quick else ''}`)", "",
-             "Settings: " + ", ".join(f"{k}: {v}" for k, v in settings.items()) + ". Method: see the script's "
-             "docstring.", ""]
-    parts += throughput(args) + [""] + memory(args)
-    parts += ["", f"Benchmark wall time: {time.perf_counter() - t0:.0f} s; load average at the end "
+    header = [f"# Batch benchmark (`benchmarks/bench_batch.py{' --quick' if args.quick else ''}`)", "",
+              "Method: see the script's docstring. Each section names the settings of the run that measured it.", ""]
+    run_settings = ["", f"Run {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, settings: " +
+                    ", ".join(f"{k}: {v}" for k, v in settings.items()) + "."]
+    sections = {}
+    for name in args.sections.split(","):
+        lines = SECTIONS[name](args)
+        sections[name] = lines[:1] + run_settings + lines[1:]
+    footer = [f"Benchmark wall time: {time.perf_counter() - t0:.0f} s; load average at the end "
               f"{os.getloadavg()[0]:.1f} (1 minute; other processes on this 2-core machine)."]
-    text = "\n".join(parts) + "\n"
+    text = merge_report(Path(out) if out else Path("/nonexistent"), header, sections) + "\n" + "\n".join(footer) + "\n"
     print("\n" + text)
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)

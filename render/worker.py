@@ -4,18 +4,37 @@ Reads the task, runs the handler of its payload (:data:`HANDLERS`: build a scene
 reports on stdout with the progress protocol's lines only: everything else (Blender's C-level prints
 included) is sent to stderr, which the caller keeps for its error message. Exit status 0 on success, 2
 for a problem with the task's inputs (``error: ...``), 1 for anything else (with a traceback on stderr).
+
+``python -m render.worker --serve`` runs one task per line of stdin in the same process (a batch build's
+long-lived worker: Blender starts once) and ends each with an ``end STATUS peak ...MB`` line carrying the
+status above. Between tasks Blender is reset to its factory state (:func:`reset_blender`), so a task's output
+does not depend on what the process did before.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import gc
 import json
 import os
+import resource
 import sys
 import time
 import traceback
 from pathlib import Path
 
-from rgbd2scene.worker_protocol import BuildScene, Describe, Render, Task, parse_line, ready_line, tie_to_parent
+from rgbd2scene.worker_protocol import (
+    SERVE_FLAG,
+    BuildScene,
+    Describe,
+    Render,
+    Task,
+    end_line,
+    parse_line,
+    ready_line,
+    tie_to_parent,
+)
 
 
 class TaskError(RuntimeError):
@@ -77,6 +96,75 @@ def run(task: Task, say) -> None:
     HANDLERS[type(task.payload)](bpy, task.payload, say, t0)
 
 
+def run_text(text: str, where: str, say) -> int:
+    """Run the task of ``text`` (read from ``where``); its exit status (module docstring)."""
+    try:
+        try:
+            task = Task.from_json(text)
+        except (ValueError, TypeError) as exc:
+            raise TaskError(f"{where}: not a task file ({exc})") from None
+        run(task, say)
+        return 0
+    except TaskError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except Exception:  # noqa: BLE001 - report everything to the parent, which shows the tail
+        traceback.print_exc()
+        return 1
+    finally:
+        sys.stderr.flush()
+
+
+def reset_blender() -> None:
+    """Back to the state of a fresh process: factory settings (preferences such as the GPU devices included),
+    no data-blocks, images or render engine data left from the task before (with persistent data, the Normal
+    pass of a render once depended on what the process had rendered before); the heap's free pages returned."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=False)
+    gc.collect()
+    _release_free_memory()
+
+
+def _release_free_memory() -> None:
+    """Hand the C heap's free pages back to the system (glibc's ``malloc_trim``): what Blender freed would
+    otherwise stay resident while the worker waits for its next task."""
+    try:
+        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+def peak_rss_mb(reset: bool = False) -> float:
+    """This process's peak resident memory (MB) since it started or since the last ``reset`` (Linux's
+    ``VmHWM``, reset through ``/proc/self/clear_refs``; elsewhere the peak of the whole process)."""
+    try:
+        status = Path("/proc/self/status").read_text()
+        peak = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")) / 1024.0
+        if reset:
+            Path("/proc/self/clear_refs").write_text("5")
+        return peak
+    except (OSError, StopIteration, ValueError):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def serve(say) -> int:
+    """Run the tasks of stdin's lines one after the other until stdin closes (exit status 0), or until Blender
+    fails to reset between them (1)."""
+    peak_rss_mb(reset=True)
+    for number, text in enumerate(sys.stdin, 1):
+        status = run_text(text, f"stdin line {number}", say)
+        try:
+            if "bpy" in sys.modules:
+                reset_blender()
+        except Exception:  # noqa: BLE001 - the task is done; a worker that cannot reset ends (the next starts fresh)
+            traceback.print_exc()
+            say(end_line(status, peak_rss_mb()))
+            return 1
+        say(end_line(status, peak_rss_mb(reset=True)))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     # stdout is the progress channel: keep it for our lines and send everything else to stderr
@@ -89,20 +177,17 @@ def main(argv: list[str] | None = None) -> int:
         progress.flush()
 
     try:
+        if argv == [SERVE_FLAG]:
+            return serve(say)
         if len(argv) != 1:
-            raise TaskError("usage: python -m render.worker TASK.json")
+            print(f"error: usage: python -m render.worker TASK.json | {SERVE_FLAG}", file=sys.stderr)
+            return 2
         try:
-            task = Task.from_json(Path(argv[0]).read_text())
-        except (OSError, ValueError, TypeError) as exc:
-            raise TaskError(f"{argv[0]}: not a task file ({exc})") from None
-        run(task, say)
-        return 0
-    except TaskError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except Exception:  # noqa: BLE001 - report everything to the parent, which shows the tail
-        traceback.print_exc()
-        return 1
+            text = Path(argv[0]).read_text()
+        except OSError as exc:
+            print(f"error: {argv[0]}: not a task file ({exc})", file=sys.stderr)
+            return 2
+        return run_text(text, argv[0], say)
     finally:
         progress.close()
 

@@ -94,15 +94,21 @@ class Task:
 #: ``ready 0.731s device CPU``; ``frame 3 rgb 1.8s cpu 3.5s``; ``frame 3 done 2.0s cpu 3.9s rgb 1.8s gt 0.2s
 #: rss 668MB``; ``frame 3 skipped``; ``built PATH``; ``describe {json}``. The render worker appends to a frame's
 #: ``rgb``/``done`` line the seconds Cycles spent on it per phase (``rgb_sync``, ``rgb_bvh``, ``rgb_trace``,
-#: ``rgb_save``, likewise ``gt_*`` for the data render: :mod:`render.timing`).
-PROTOCOL = ("ready", "frame", "built", "describe")
+#: ``rgb_save``, likewise ``gt_*`` for the data render: :mod:`render.timing`). A serving worker
+#: (:data:`SERVE_FLAG`) ends each task with ``end 0 peak 612MB``: the task's exit status (as a one-task worker's
+#: process would have it) and the process's peak resident memory during the task.
+PROTOCOL = ("ready", "frame", "built", "describe", "end")
 _FRAME = re.compile(r"^frame (\d+) (done|skipped|rgb)\b")
+_END = re.compile(r"^end (-?\d+)\b")
+#: ``python -m render.worker --serve``: one task per stdin line (:meth:`Task.to_json`), each answered with its
+#: progress lines and an ``end`` line, until stdin closes.
+SERVE_FLAG = "--serve"
 _NUMBERS = re.compile(r"(\w+) ([0-9.]+)(s|MB)")
 
 
 @dataclass
 class Event:
-    kind: str  # ready | rgb | done | skipped | built | describe
+    kind: str  # ready | rgb | done | skipped | built | describe | end
     frame: int | None = None
     stats: dict = field(default_factory=dict)
     text: str = ""
@@ -131,9 +137,18 @@ def frame_line(index: int, what: str, seconds: float | None = None, **stats: flo
     return " ".join(parts)
 
 
+def end_line(status: int, peak_rss_mb: float) -> str:
+    """A serving worker's last line of a task: its exit ``status`` and peak memory (:data:`PROTOCOL`)."""
+    return f"end {status} peak {peak_rss_mb:.0f}MB"
+
+
 def parse_line(line: str) -> Event | None:
-    """The event of one worker stdout line, or None for anything else."""
+    """The event of one worker stdout line, or None for anything else (``end``: ``stats["status"]``,
+    ``stats["peak"]``)."""
     line = line.strip()
+    m = _END.match(line)
+    if m:
+        return Event("end", stats={"status": int(m.group(1)), **{k: float(v) for k, v, _ in _NUMBERS.findall(line)}})
     if line.startswith("ready"):
         return Event("ready", stats={k: float(v) for k, v, _ in _NUMBERS.findall(line)})
     if line.startswith("built "):

@@ -731,3 +731,20 @@ def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_o
     choice = choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), None, labels, traits)
     assert NAMES[choice[labels[60, 80]]] == "biharmonic"
     assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise
+
+
+def test_single_blas_thread_sets_every_openblas_to_one_thread_and_back():
+    """The fill's solves run side by side on one BLAS thread each; the thread counts come back afterwards."""
+    import scipy.sparse.linalg  # noqa: F401 - SciPy's own OpenBLAS
+
+    from rgbd2scene.blas import _openblas_libraries, single_blas_thread
+
+    libraries = _openblas_libraries()
+    if not libraries:
+        pytest.skip("no OpenBLAS loaded (another BLAS): nothing to limit")
+    before = [get() for get, _ in libraries]
+    with single_blas_thread():
+        with single_blas_thread():  # overlapping blocks (threads of a local pool)
+            assert [get() for get, _ in libraries] == [1] * len(libraries)
+        assert [get() for get, _ in libraries] == [1] * len(libraries)
+    assert [get() for get, _ in libraries] == before

@@ -2,7 +2,8 @@
 
 The same task functions (:mod:`rgbd2scene.batch.tasks`) are submitted either way. The heavy work happens in
 processes the tasks start (Blender workers through ``run_task``), so a thread per concurrent unit is all a
-local pool needs, and Dask workers never import ``bpy`` themselves.
+local pool needs, and Dask workers never import ``bpy`` themselves. Each thread keeps its Blender worker for
+the next unit; closing an engine ends them (:func:`rgbd2scene.stages.blender.close_workers`).
 """
 
 from __future__ import annotations
@@ -48,7 +49,10 @@ class LocalEngine:
         concurrent.futures.wait(list(futures), timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED)
 
     def close(self) -> None:
+        from rgbd2scene.stages.blender import close_workers
+
         self.pool.shutdown(wait=True, cancel_futures=True)
+        close_workers()
 
 
 class DaskEngine:
@@ -97,6 +101,12 @@ class DaskEngine:
             pass
 
     def close(self) -> None:
+        from rgbd2scene.stages.blender import close_workers
+
+        try:  # the workers' Blender processes (a scheduler's workers live on after this build)
+            self.client.run(close_workers)
+        except Exception:  # noqa: BLE001 - a worker already gone: the client and cluster must still close
+            pass
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()

@@ -1,11 +1,14 @@
 """The units of work of a batch build, as plain functions any engine runs (a local thread, a Dask worker).
 
 - :func:`build_mesh`: reconstruct one capture into its mesh folder (numpy/Open3D, in the calling process);
-- :func:`build_scene`: one sequence's scene folder from a mesh (or scene) folder; Blender runs in a fresh
+- :func:`build_scene`: one sequence's scene folder from a mesh (or scene) folder; Blender runs in its own
   process through :func:`rgbd2scene.stages.blender.run_task`;
-- :func:`render_chunk`: one chunk of frames of one sequence, likewise in a fresh Blender process.
+- :func:`render_chunk`: one chunk of frames of one sequence, likewise.
 
-None of them imports ``bpy``: a Dask worker stays a plain Python process. Each returns an :class:`Outcome`
+The Blender process is the running thread's long-lived worker (:func:`rgbd2scene.stages.blender.reusing_workers`):
+started by the first unit a pool thread or Dask worker thread runs, it takes every later scene build and chunk
+of that thread, whatever their sequence (the engine ends it when it closes). None of the units imports ``bpy``:
+a Dask worker stays a plain Python process. Each returns an :class:`Outcome`
 instead of raising, so what went wrong reaches the driver the same way from any engine; only the engine's
 own failures (a worker killed) surface as exceptions of the future.
 """
@@ -34,10 +37,14 @@ class Outcome:
 
 
 def _run(work: Callable[[], float]) -> Outcome:
-    """Run ``work`` (returning the worker's peak memory in MB) and report how it ended."""
+    """Run ``work`` (returning the worker's peak memory in MB; its Blender tasks in the thread's long-lived
+    worker) and report how it ended."""
+    from rgbd2scene.stages.blender import reusing_workers
+
     t0 = time.perf_counter()
     try:
-        peak = work()
+        with reusing_workers():
+            peak = work()
     except (UserError, RenderError) as exc:
         text = str(exc).strip() or type(exc).__name__
         return Outcome(False, time.perf_counter() - t0, text.splitlines()[0], text)

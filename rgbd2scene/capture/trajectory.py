@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from rgbd2scene.conventions import invert_pose
 
@@ -103,6 +102,8 @@ def check_pose(T: np.ndarray, where: str) -> None:
 
 def parse_tum(text: str) -> Trajectory:
     """Poses of a TUM trajectory (``timestamp tx ty tz qx qy qz qw`` per line); see the module docstring."""
+    from scipy.spatial.transform import Rotation  # here: every capture command imports this module at start-up
+
     stamps, poses = [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         fields = _split(line)

@@ -237,7 +237,8 @@ def obj_text(mesh: Mesh, mtl_name: str | None = None, material: str = "material0
     if len(t):
         idx = t + 1
         width = _n_digits(idx.max())
-        d = _digits(idx, width)  # (M, 3, width)
+        # each vertex's number once, then looked up by the faces (a vertex is in about six of them)
+        d = _digits(np.arange(len(v) + 1), width)[idx] if len(v) else _digits(idx, width)  # (M, 3, width)
         space = np.full(idx.shape + (1,), 32, dtype=np.uint8)
         if has_uv:
             slash = np.full(idx.shape + (1,), 47, dtype=np.uint8)

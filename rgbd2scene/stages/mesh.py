@@ -83,18 +83,19 @@ def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool
     out = ensure_output_dir(out_dir)
     (out / folder.SCENE_JSON).unlink(missing_ok=True)
     t0 = time.perf_counter()
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        # the overview's ray cast runs while the mesh files are written (both mostly outside the GIL)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        # the overview's splats and the OBJ text (numpy, mostly outside the GIL) run beside the other files
         image = pool.submit(_overview_image, recon) if recon.options.overview else None
+        obj = pool.submit(write_textured_obj, out, recon.mesh, name=folder.MESH_NAME)
         write_ply(out / folder.MESH, recon.mesh)
         depth_filled = recon.filled.depth.astype(np.float32)
         write_npy(out / folder.DEPTH_FILLED, depth_filled)
-        write_textured_obj(out, recon.mesh, name=folder.MESH_NAME)
         if _highlights_removed(recon):
             write_image(out / folder.TEXTURE_ORIGINAL, recon.capture.rgb)
         if image is not None:
             write_overview(out / folder.OVERVIEW, recon.capture.rgb, recon.capture.depth, depth_filled,
                            image.result(), title=Path(recon.capture.rgb_path).name)
+        obj.result()
     recon.timings["write_s"] = time.perf_counter() - t0
     record = scene_record(recon)
     if finalize:
