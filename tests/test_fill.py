@@ -733,18 +733,20 @@ def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_o
     assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise
 
 
-def test_single_blas_thread_sets_every_openblas_to_one_thread_and_back():
+def test_single_blas_thread_sets_every_blas_to_one_thread_and_back():
     """The fill's solves run side by side on one BLAS thread each; the thread counts come back afterwards."""
     import scipy.sparse.linalg  # noqa: F401 - SciPy's own OpenBLAS
+    from threadpoolctl import threadpool_info
 
-    from rgbd2scene.blas import _openblas_libraries, single_blas_thread
+    from rgbd2scene.blas import single_blas_thread
 
-    libraries = _openblas_libraries()
-    if not libraries:
-        pytest.skip("no OpenBLAS loaded (another BLAS): nothing to limit")
-    before = [get() for get, _ in libraries]
+    def blas_threads():
+        return [pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"]
+
+    before = blas_threads()
+    assert len(before) >= 2  # NumPy's and SciPy's OpenBLAS
     with single_blas_thread():
         with single_blas_thread():  # overlapping blocks (threads of a local pool)
-            assert [get() for get, _ in libraries] == [1] * len(libraries)
-        assert [get() for get, _ in libraries] == [1] * len(libraries)
-    assert [get() for get, _ in libraries] == before
+            assert blas_threads() == [1] * len(before)
+        assert blas_threads() == [1] * len(before)
+    assert blas_threads() == before
