@@ -7,40 +7,30 @@ the scene model of the task. K, the baseline and every pose written to the npz c
 again (resume). Progress goes out as the protocol's lines (``frame 3 rgb ...``, ``frame 3 done ...``,
 ``frame 3 skipped``).
 
-Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, pivot LEFT):
+Each frame's images come from one RGB render, both eyes (Blender multiview, PARALLEL, pivot LEFT): the scene
+as built, ``--samples`` per pixel (adaptive), the usual pixel filter, motion blur (shutter centred on the
+frame) and depth of field when asked for; Blender writes the linear Combined pass (and the Depth pass when an
+environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs: environment effects, auto
+exposure and the sensor model (:class:`rgbd2scene.dataset.develop_frames.FrameDeveloper`). Frame i renders
+while frame i-1 is developed and written (:func:`_rgb_phase`).
 
-1. **RGB**: the scene as built, ``--samples`` per pixel (adaptive), the usual pixel filter, motion blur
-   (shutter centred on the frame) and depth of field when asked for; Blender writes the linear Combined pass
-   (and the Depth pass when an environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs:
-   environment effects, auto exposure and the sensor model (:class:`rgbd2scene.dataset.develop_frames.
-   FrameDeveloper`).
-2. **Data** (only when ground truth is asked for): 1 sample per pixel, pixel filter width 0.01 (the one
-   sample goes through the pixel centre, +-0.005 px), ``max_bounces`` 0, no denoising, a black emission
-   material override (no lights, BSDFs or subsurface are evaluated: the geometry alone decides every
-   pass), passes Depth, Normal, Vector and Object Index written as a 32-bit multilayer EXR. Those passes
-   are then exact per pixel centre: no anti-aliasing blends two surfaces (Depth and Object Index of the
-   RGB render are first-sample values, but with the RGB render's wide pixel filter that sample is not at
-   the pixel centre; Normal and Vector are averaged over samples). The override also keeps shading
-   tricks out of the Normal pass (the Principled BSDF bends normals at grazing angles): the normals are
-   the mesh's interpolated normals, like the depth is the mesh's depth.
+Ground truth (``--gt-source model``, the default) does not come from Blender: every map is ray-cast from the
+scene model along each pixel's own ray (:mod:`rgbd2scene.groundtruth.model_maps`), in a low-priority child
+process started before the blend opens (:class:`rgbd2scene.groundtruth.background.BackgroundGroundTruth`), so
+it fills the render's idle moments; the worker waits for the maps only after its last image.
 
-The passes become the section-3 maps in :func:`rgbd2scene.groundtruth.gt_from_passes` and are written
-by :mod:`rgbd2scene.dataset` (atomic). Temporary files live in the run's own scratch folder
-``DATASET/.work/<run>/`` (locked while the run lives) and are removed.
+``--gt-source blender`` (the independent cross-check, also ``verify --blender-frames``) renders each frame a
+second time for its data: 1 sample per pixel, pixel filter width 0.01 (the one sample goes through the pixel
+centre, +-0.005 px), ``max_bounces`` 0, no denoising, a black emission material override (the geometry alone
+decides every pass), passes Depth, Normal, Vector and Object Index as a 32-bit multilayer EXR. A Mask modifier
+keeps, per part, the triangles the two eyes can see and their one-ring
+(:meth:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry.view_support`), so the passes are the whole
+mesh's bit for bit (``tests/test_motion.py``) for a fraction of the sync and BVH time. The passes become the
+maps in :func:`rgbd2scene.groundtruth.gt_from_passes`.
 
-The data render syncs only what the frame needs: a Mask modifier (off in RGB renders) keeps, per part,
-the triangles the two eyes can see and every triangle sharing a vertex with one
-(:meth:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry.view_support`), so every hit and every smooth
-normal is the whole mesh's and the passes are the same bit for bit (``tests/test_motion.py``), while the
-endoscope's view holds about 1 % of a capture's mesh: Cycles syncs and builds a BVH over that instead of
-600k triangles, twice per frame (the Vector pass makes each eye's render sync the scene again).
-
-Cost (2 cores, 512x256, the bundled sample's 307k-vertex mesh, wet-tissue material, defaults 1 spp + OIDN):
-see benchmarks/results/render.md and render_motion.md. To keep it low: all RGB renders of a chunk run
-first, then all data renders (switching configuration per frame made Cycles rebuild its scene twice per
-frame), persistent data is on for the RGB renders, settings are only assigned when they change, and while
-Blender renders frame i's passes one thread computes what the scene model gives of frame i (occlusion
-maps, deformed vertices) and another converts and compresses frame i-1's passes.
+Maps are written by :mod:`rgbd2scene.dataset` (atomic). Temporary files live in the run's own scratch folder
+``DATASET/.work/<run>/`` (locked while the run lives) and are removed. Cost: benchmarks/results/render.md,
+issue16.md and profile.md.
 """
 
 from __future__ import annotations
