@@ -67,6 +67,7 @@ from rgbd2scene.rendering import (
     GT_FILTER_WIDTH_PX,
     GT_MAX_BOUNCES,
     GT_SAMPLES,
+    RGB_SAMPLING_PATTERN,
     Engine,
     RenderOptions,
 )
@@ -207,6 +208,8 @@ class Renderer:
         self.prefilter = options.prefilter.upper()
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
+        # the data render keeps the blend's pattern: its one sample stays where it was (the same passes)
+        self.data_sampling_pattern = scene.cycles.sampling_pattern
         self.maps = options.maps
         self.sensor = options.sensor
         # the linear render is in the rendered grid (the rectified pair of a raw rig): the environment's ray
@@ -274,6 +277,7 @@ class Renderer:
                 (cy, "filter_width", self.rgb_filter_width), (cy, "max_bounces", self.rgb_max_bounces),
                 (cy, "use_denoising", self.denoiser.blender is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
+                (cy, "sampling_pattern", RGB_SAMPLING_PATTERN),
                 (vl, "material_override", None), (vl, "use_pass_combined", True),
                 # Depth only for environment effects (ray lengths through smoke)
                 (vl, "use_pass_z", self.developer.needs_depth), (vl, "use_pass_normal", False),
@@ -302,7 +306,8 @@ class Renderer:
                 (cy, "samples", GT_SAMPLES), (cy, "use_adaptive_sampling", False),
                 (cy, "filter_width", GT_FILTER_WIDTH_PX),
                 (cy, "max_bounces", GT_MAX_BOUNCES), (cy, "use_denoising", False), (cy, "seed", 0),
-                (cy, "use_animated_seed", False), (vl, "material_override", self.gt_material),
+                (cy, "use_animated_seed", False), (cy, "sampling_pattern", self.data_sampling_pattern),
+                (vl, "material_override", self.gt_material),
                 (vl, "use_pass_z", True), (vl, "use_pass_normal", "normal" in p),
                 (vl, "use_pass_vector", "vector" in p), (vl, "use_pass_object_index", "index" in p)]
                + [(mask.modifier, "show_render", True) for mask in self.view_masks]
