@@ -18,7 +18,8 @@ The scene is ``bench_render.py``'s (``rgbd2scene scene`` on ``data_samples/tissu
    writes the Depth, Normal, Vector and Object Index passes of the same render beside the image, as
    VisionBlender's add-on does (one multilayer 32-bit EXR per eye and frame, a plain ``bpy`` script on the
    same blend: no exact ground truth, no sensor model). Wall times of the whole runs (process start
-   included), alternating, and their CPU seconds (this process and its workers: less dependent on other load). The quality of each setting against the 256-sample reference is
+   included), alternating, and their CPU seconds (this process and its workers: less dependent on other
+   load). The quality of each setting against the 256-sample reference is
    ``bench_render.py``'s quality sweep on the same scene (``benchmarks/results/render.md``).
 4. **Memory of one worker** (``memory``): ``--memory-frames`` frames at 64x32 with all ground truth in one
    worker (one chunk), its resident memory at every progress line: whether one process could render far more
