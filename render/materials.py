@@ -73,7 +73,7 @@ VESSEL_RELIEF = 0.3
 SEED_OFFSET_M = 1.0
 #: Wet-tissue BSDF: roughness and a thin wet coat. No subsurface scattering: the 5 % random-walk layer of 0.5 mm
 #: it had was most of a sample's noise (16 samples: 35.6 dB against 256, 39.0 dB without it) and cost 15 % of the
-#: path tracing, while the converged images with and without it differ by about 54 dB, far below the renders'
+#: path tracing, while the converged images with and without it differ by about 53 dB, far below the renders'
 #: own error (benchmarks/results/render.md, section 8).
 WET_TISSUE = {"Roughness": 0.3, "Specular IOR Level": 0.5, "IOR": 1.4,
               "Coat Weight": 0.3, "Coat Roughness": 0.08, "Coat IOR": 1.33}
