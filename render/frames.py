@@ -9,9 +9,10 @@ again (resume). Progress goes out as the protocol's lines (``frame 3 rgb ...``, 
 
 Each frame is rendered twice, both eyes each time (Blender multiview, PARALLEL, pivot LEFT):
 
-1. **RGB**: the scene as built, ``--samples`` per pixel (adaptive), the usual pixel filter, motion blur
-   (shutter centred on the frame) and depth of field when asked for; Blender writes the linear Combined pass
-   (and the Depth pass when an environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs:
+1. **RGB**: the scene as built, ``--samples`` per pixel (adaptive, Cycles' blue-noise pattern), the usual pixel
+   filter, motion blur (shutter centred on the frame) and depth of field when asked for; Blender writes the
+   linear Combined pass (and the Depth pass when an environment effect needs ray lengths) as a 32-bit EXR, and
+   numpy makes the PNGs:
    environment effects, auto exposure and the sensor model (:class:`rgbd2scene.dataset.develop_frames.
    FrameDeveloper`).
 2. **Data** (only when ground truth is asked for): 1 sample per pixel, pixel filter width 0.01 (the one
