@@ -18,7 +18,8 @@ The scene is ``bench_render.py``'s (``rgbd2scene scene`` on ``data_samples/tissu
    writes the Depth, Normal, Vector and Object Index passes of the same render beside the image, as
    VisionBlender's add-on does (one multilayer 32-bit EXR per eye and frame, a plain ``bpy`` script on the
    same blend: no exact ground truth, no sensor model). Wall times of the whole runs (process start
-   included), alternating. The quality of each setting against the 256-sample reference is
+   included), alternating, and their CPU seconds (this process and its workers: less dependent on other
+   load). The quality of each setting against the 256-sample reference is
    ``bench_render.py``'s quality sweep on the same scene (``benchmarks/results/render.md``).
 4. **Memory of one worker** (``memory``): ``--memory-frames`` frames at 64x32 with all ground truth in one
    worker (one chunk), its resident memory at every progress line: whether one process could render far more
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import shutil
 import statistics
 import subprocess
@@ -118,42 +120,56 @@ def gt_only_section(scene: Path, frames: int) -> tuple[str, dict]:
     return text, {"fixed_s": times[1], "per_frame_s": per_frame, "mb_per_frame": mb}
 
 
-def vb_run(scene: Path, out: Path) -> float:
+def cpu_seconds() -> float:
+    """CPU seconds used so far by this process and its finished children (the workers): less load-dependent
+    than wall time on a shared machine."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def vb_run(scene: Path, out: Path) -> tuple[float, float]:
     if out.exists():
         shutil.rmtree(out)
     out.mkdir(parents=True)
     with tempfile.NamedTemporaryFile("w", suffix=".py", delete=False) as f:
         f.write(VB_SCRIPT)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     proc = subprocess.run([sys.executable, f.name, str(scene / SCENE_BLEND), str(out), str(VB_FRAMES),
                            str(VB_SAMPLES)], capture_output=True, text=True)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     Path(f.name).unlink()
     if proc.returncode != 0 or len(list(out.glob("*.exr"))) != 2 * VB_FRAMES:
         raise RuntimeError(f"VisionBlender-style render failed:\n{proc.stderr[-2000:]}")
-    return seconds
+    return seconds, cpu
 
 
 def vb_section(scene: Path, repeats: int) -> tuple[str, dict]:
     default = br.default_setting()
-    ours, vb = [], []
+    ours, vb, ours_cpu, vb_cpu = [], [], [], []
     for r in range(repeats):
         out = WORK / "default"
         if out.exists():
             shutil.rmtree(out)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), cpu_seconds()
         render_dataset(scene, out, size=(512, 256), frames=br.PATH_FRAMES, end=VB_FRAMES, gt="all", progress=False,
                        chunk=VB_FRAMES)
         ours.append(time.perf_counter() - t0)
-        vb.append(vb_run(scene, WORK / "visionblender"))
-        print(f"  run {r + 1}: default {ours[-1]:.1f} s, VisionBlender-style {vb[-1]:.1f} s", flush=True)
+        ours_cpu.append(cpu_seconds() - c0)
+        seconds, cpu = vb_run(scene, WORK / "visionblender")
+        vb.append(seconds)
+        vb_cpu.append(cpu)
+        print(f"  run {r + 1}: default {ours[-1]:.1f} s ({ours_cpu[-1]:.1f} CPU s), VisionBlender-style "
+              f"{vb[-1]:.1f} s ({vb_cpu[-1]:.1f} CPU s)", flush=True)
     a, b = statistics.median(ours), statistics.median(vb)
+    ac, bc = statistics.median(ours_cpu), statistics.median(vb_cpu)
     ok = "meets" if b / a >= SPEEDUP_TARGET else "misses"
-    text = (f"| render (10 stereo frames, 512x256) | wall s (median of {repeats}) |\n|---|---|\n"
-            f"| default: {default.label}, all ground truth (exact, from the scene model) | {a:.1f} |\n"
-            f"| VisionBlender-style: {VB_SAMPLES} spp, fixed, no denoiser, passes of the same render | {b:.1f} |\n\n"
-            f"VisionBlender-style / default = **{b / a:.2f}x** ({ok} the {SPEEDUP_TARGET:.0f}x target).")
-    return text, {"default_s": a, "visionblender_s": b, "speedup": b / a}
+    text = (f"| render (10 stereo frames, 512x256) | wall s (median of {repeats}) | CPU s |\n|---|---|---|\n"
+            f"| default: {default.label}, all ground truth (exact, from the scene model) | {a:.1f} | {ac:.1f} |\n"
+            f"| VisionBlender-style: {VB_SAMPLES} spp, fixed, no denoiser, passes of the same render | {b:.1f} "
+            f"| {bc:.1f} |\n\nVisionBlender-style / default = **{b / a:.2f}x** wall ({ok} the {SPEEDUP_TARGET:.0f}x "
+            f"target), {bc / ac:.2f}x CPU time.")
+    return text, {"default_s": a, "visionblender_s": b, "speedup": b / a, "default_cpu_s": ac,
+                  "visionblender_cpu_s": bc, "cpu_speedup": bc / ac}
 
 
 def _growth_per_1000(series) -> float:

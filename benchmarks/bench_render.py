@@ -133,11 +133,9 @@ class Setting:
 REFERENCE = Setting(256, False, "none")
 BAKE_SETTING = Setting(16, False, "none")
 BASELINE = Setting(16, False, "none")
-CANDIDATES = (BASELINE, Setting(16, False, "oidn", "fast"), Setting(8, False, "oidn", "fast"),
-              Setting(8, False, "oidn", "accurate"), Setting(4, False, "oidn", "fast"),
-              Setting(4, False, "oidn", "accurate"), Setting(2, False, "oidn", "fast"),
-              Setting(2, False, "oidn", "accurate"), Setting(1, True, "oidn", "fast"),
-              Setting(1, True, "oidn", "accurate"), Setting(1, True, "oidn", "none"))
+CANDIDATES = (BASELINE, Setting(16, False, "oidn", "fast"), Setting(8, False, "oidn", "accurate"),
+              Setting(4, False, "oidn", "accurate"), Setting(4, False, "oidn", "fast"),
+              Setting(2, False, "oidn", "fast"), Setting(1, True, "oidn", "fast"), Setting(1, True, "oidn", "accurate"))
 QUICK_CANDIDATES = (BASELINE, Setting(4, False, "oidn", "fast"), Setting(2, False, "oidn", "fast"),
                     Setting(1, True, "oidn", "fast"))
 #: The quality sweep scores the renderer's output before the sensor model: fixed exposure, no vignetting and no

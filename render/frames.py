@@ -8,11 +8,12 @@ again (resume). Progress goes out as the protocol's lines (``frame 3 rgb ...``, 
 ``frame 3 skipped``).
 
 Each frame's images come from one RGB render, both eyes (Blender multiview, PARALLEL, pivot LEFT): the scene
-as built, ``--samples`` per pixel (adaptive), the usual pixel filter, motion blur (shutter centred on the
-frame) and depth of field when asked for; Blender writes the linear Combined pass (and the Depth pass when an
-environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs: environment effects, auto
-exposure and the sensor model (:class:`rgbd2scene.dataset.develop_frames.FrameDeveloper`). Frame i renders
-while frame i-1 is developed and written (:func:`_rgb_phase`).
+as built, ``--samples`` per pixel (adaptive, Cycles' blue-noise pattern), the usual pixel filter, motion blur
+(shutter centred on the frame) and depth of field when asked for; Blender writes the linear Combined pass (and
+the Depth pass when an environment effect needs ray lengths) as a 32-bit EXR, and numpy makes the PNGs:
+environment effects, auto exposure and the sensor model
+(:class:`rgbd2scene.dataset.develop_frames.FrameDeveloper`). Frame i renders while frame i-1 is developed and
+written (:func:`_rgb_phase`).
 
 Ground truth (``--gt-source model``, the default) does not come from Blender: every map is ray-cast from the
 scene model along each pixel's own ray (:mod:`rgbd2scene.groundtruth.model_maps`), in a low-priority child
@@ -22,8 +23,9 @@ it fills the render's idle moments; the worker waits for the maps only after its
 ``--gt-source blender`` (the independent cross-check, also ``verify --blender-frames``) renders each frame a
 second time for its data: 1 sample per pixel, pixel filter width 0.01 (the one sample goes through the pixel
 centre, +-0.005 px), ``max_bounces`` 0, no denoising, a black emission material override (the geometry alone
-decides every pass), passes Depth, Normal, Vector and Object Index as a 32-bit multilayer EXR. A Mask modifier
-keeps, per part, the triangles the two eyes can see and their one-ring
+decides every pass; the blend's own sampling pattern, so the one sample stays at the pixel centre), passes
+Depth, Normal, Vector and Object Index as a 32-bit multilayer EXR. A Mask modifier keeps, per part, the
+triangles the two eyes can see and their one-ring
 (:meth:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry.view_support`), so the passes are the whole
 mesh's bit for bit (``tests/test_motion.py``) for a fraction of the sync and BVH time. The passes become the
 maps in :func:`rgbd2scene.groundtruth.gt_from_passes`.
@@ -57,6 +59,7 @@ from rgbd2scene.rendering import (
     GT_FILTER_WIDTH_PX,
     GT_MAX_BOUNCES,
     GT_SAMPLES,
+    RGB_SAMPLING_PATTERN,
     Engine,
     RenderOptions,
 )
@@ -197,6 +200,8 @@ class Renderer:
         self.prefilter = options.prefilter.upper()
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
+        # the data render keeps the blend's pattern: its one sample stays where it was (the same passes)
+        self.data_sampling_pattern = scene.cycles.sampling_pattern
         self.maps = options.maps
         self.sensor = options.sensor
         # the linear render is in the rendered grid (the rectified pair of a raw rig): the environment's ray
@@ -259,6 +264,7 @@ class Renderer:
                 (cy, "filter_width", self.rgb_filter_width), (cy, "max_bounces", self.rgb_max_bounces),
                 (cy, "use_denoising", self.denoiser.blender is not None), (cy, "seed", self.seed),
                 (cy, "use_animated_seed", True),  # a different (reproducible) noise pattern per frame
+                (cy, "sampling_pattern", RGB_SAMPLING_PATTERN),
                 (vl, "material_override", None), (vl, "use_pass_combined", True),
                 # Depth only for environment effects (ray lengths through smoke)
                 (vl, "use_pass_z", self.developer.needs_depth), (vl, "use_pass_normal", False),
@@ -287,7 +293,8 @@ class Renderer:
                 (cy, "samples", GT_SAMPLES), (cy, "use_adaptive_sampling", False),
                 (cy, "filter_width", GT_FILTER_WIDTH_PX),
                 (cy, "max_bounces", GT_MAX_BOUNCES), (cy, "use_denoising", False), (cy, "seed", 0),
-                (cy, "use_animated_seed", False), (vl, "material_override", self.gt_material),
+                (cy, "use_animated_seed", False), (cy, "sampling_pattern", self.data_sampling_pattern),
+                (vl, "material_override", self.gt_material),
                 (vl, "use_pass_z", True), (vl, "use_pass_normal", "normal" in p),
                 (vl, "use_pass_vector", "vector" in p), (vl, "use_pass_object_index", "index" in p)]
                + [(mask.modifier, "show_render", True) for mask in self.view_masks]

@@ -4,8 +4,8 @@ Tissue looks:
 
 * ``as_captured``: unlit, Emission strength 1 from the sRGB texture: rendered from the capture camera with
   the scene's Standard view transform, an 8-bit render gives back the texture bytes.
-* ``wet_tissue``: glossy, light-dependent tissue (Principled BSDF with a thin wet coat and a little
-  subsurface scattering), plus the procedural micro-structure of
+* ``wet_tissue``: glossy, light-dependent tissue (Principled BSDF with a thin wet coat), plus the procedural
+  micro-structure of
   :class:`~rgbd2scene.scene.materials.TissueDetail` when it is enabled.
 
 The micro-structure (:func:`add_tissue_detail`) works in metres on the tissue surface: the "Generated"
@@ -71,10 +71,12 @@ VESSEL_COVERAGE_PER_WIDTH = 0.65
 VESSEL_RELIEF = 0.3
 #: Range of the seed-derived offset of the pattern coordinates, in metres.
 SEED_OFFSET_M = 1.0
-#: Wet-tissue BSDF: roughness and a thin wet coat; metres for the subsurface scale (mm-scale scattering).
+#: Wet-tissue BSDF: roughness and a thin wet coat. No subsurface scattering: the 5 % random-walk layer of 0.5 mm
+#: it had was most of a sample's noise (16 samples: 35.6 dB against 256, 39.0 dB without it) and cost 15 % of the
+#: path tracing, while the converged images with and without it differ by about 53 dB, far below the renders'
+#: own error (benchmarks/results/render.md, section 8).
 WET_TISSUE = {"Roughness": 0.3, "Specular IOR Level": 0.5, "IOR": 1.4,
-              "Coat Weight": 0.3, "Coat Roughness": 0.08, "Coat IOR": 1.33,
-              "Subsurface Weight": 0.05, "Subsurface Scale": 0.0005}
+              "Coat Weight": 0.3, "Coat Roughness": 0.08, "Coat IOR": 1.33}
 
 
 def make_material(material: Material, image=None, vertex_colors: bool = True, baked: tuple | None = None):
@@ -107,7 +109,6 @@ def wet_tissue_material(image=None, detail: TissueDetail | None = None, baked: t
     mat, nodes, links = _new_material("wet_tissue")
     colour = _colour_source(nodes, image)
     shader = nodes.new("ShaderNodeBsdfPrincipled")
-    links.new(colour, shader.inputs["Subsurface Radius"])  # reddish scattering, from the capture's colour
     if detail is not None and detail.enabled:
         if baked is None:
             colour, normal = add_tissue_detail(nodes, links, colour, detail)

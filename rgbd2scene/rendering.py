@@ -84,13 +84,17 @@ GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_
              "exr": "32-bit float, multilayer", "persistent_data": False}
 
 GT_SOURCES = ("model", "blender")
-#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise, its guides prefiltered ``fast``: the
-#: cheapest point of the quality sweep on the baked scene (35.4 dB / SSIM 0.943 against 256 samples, about a
-#: third of the cost of the ``accurate`` prefilter for 0.5 dB; no affordable setting reaches 40 dB / 0.97:
-#: benchmarks/results/render.md, section 7).
+#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise, its guides prefiltered ``fast``, and Cycles'
+#: blue-noise sampling pattern: the cheapest point of the quality sweep, 35.2-36.4 dB / SSIM 0.955-0.962 against
+#: 256 samples at 512x256 on two frames not tuned on, at about 1/5.3 of the CPU time of a 16-sample render of the
+#: same scene with all ground truth. Blue noise instead of the blend's tabulated Sobol pattern: +0.2 dB after
+#: denoising, 0.5 dB less noise at 16 samples, same cost. No setting within six times less than the 16-sample
+#: render reaches 40 dB / 0.97: OIDN smears the tissue's pixel-scale texture and the coat's glints on it (4 spp:
+#: 37-40 dB; benchmarks/results/render.md section 8, issue16.md section 3).
 DEFAULT_SAMPLES = 1
 DEFAULT_DENOISE = "oidn"
 DEFAULT_PREFILTER = "fast"
+RGB_SAMPLING_PATTERN = "BLUE_NOISE"
 DEFAULT_CHUNK = 25
 
 

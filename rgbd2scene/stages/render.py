@@ -37,6 +37,7 @@ from rgbd2scene.rendering import (  # noqa: F401 - the stage's options, re-expor
     ENGINES,
     GT_RENDER,
     GT_SOURCES,
+    RGB_SAMPLING_PATTERN,
     RenderOptions,
     machine_memory_bytes,
     parse_size,
@@ -117,7 +118,7 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
     rel = Path(os.path.relpath(scene_dir.resolve(), out_dir.resolve()))
     table = description.object_table()
     render = to_record(options)
-    render.update(engine="CYCLES", gt=list(options.maps),
+    render.update(engine="CYCLES", sampling_pattern=RGB_SAMPLING_PATTERN, gt=list(options.maps),
                   gt_render=GT_RENDER if options.gt_source == "blender" else GT_MODEL)
     return {
         "width": intr.width, "height": intr.height, "frames": frames, "fps": description.path.fps,
