@@ -75,12 +75,14 @@ What ``auto`` does
    fills with the band left open while they were solved (where no hole takes it, the band is extended
    last as for the other methods). A wide band beside a wide hole is one surface to continue: filled in
    turn, the holes' thin plate ends free at the band and the band's then continues from that edge. On
-   the tuning split: geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36
-   (TUM transplant 0: 0.94 -> 0.83; tissue transplant 0: 1.09 -> 1.10). Tried there and not kept: the
-   band by a harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the harmonic and the
-   biharmonic fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of the band's rim
-   (0.787, 4 rows) or, per pixel, of the surface within the band's width (0.792, 4 rows), and a separate
-   biharmonic solve of band and all holes from the valid depth alone (0.786, 3 rows, one more solve).
+   the tuning split: geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM
+   transplant 0: 0.94 -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the
+   choice, 24 -> 23 of 101 rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split
+   and not kept: the band by a harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the
+   harmonic and the biharmonic fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of
+   the band's rim (0.787, 4 rows) or, per pixel, of the surface within the band's width (0.792, 4 rows),
+   and a separate biharmonic solve of band and all holes from the valid depth alone (0.786, 3 rows, one
+   more solve).
 ``FillResult.method`` names the base fills used, e.g. ``"auto: background+biharmonic+nyu_colorization"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two
 counts for both).
