@@ -515,9 +515,25 @@ def main(argv: list[str] | None = None) -> int:
     if out is None:
         out = str(ROOT / "benchmarks" / "results" / "fill.md") if args.split == "report" and not args.quick else ""
     if out:
+        text = text.replace("## Every row", kept_notes(Path(out)) + "## Every row", 1)
         atomic.write_text(out, text)
         print(f"wrote {out}")
     return 0
+
+
+#: The heading of the results file's hand-written section, which a rerun keeps (:func:`kept_notes`).
+NOTES_HEADING = "## Notes on this run (written by hand)"
+
+
+def kept_notes(path: Path) -> str:
+    """The hand-written notes of an earlier results file at ``path`` (from :data:`NOTES_HEADING` to the next
+    section), to be kept before the rows of a rerun and updated by hand; empty if there are none."""
+    text = path.read_text() if path.is_file() else ""
+    start = text.find(NOTES_HEADING)
+    if start < 0:
+        return ""
+    end = text.find("\n## ", start + len(NOTES_HEADING))
+    return text[start:end if end >= 0 else len(text)].rstrip() + "\n\n"
 
 
 def _cpus() -> int:

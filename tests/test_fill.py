@@ -346,6 +346,23 @@ def test_hole_beyond_the_range_stays_empty():
     assert np.isfinite(fill_depth(flat, None, "auto").depth).all()
 
 
+def test_auto_fills_the_band_in_the_same_thin_plate_as_the_holes_beside_it():
+    """Where ``auto`` fills holes with the biharmonic fill, the band is in the same solve: the thin plate
+    of band and holes together, not the holes first (with the band open) and the band extended after."""
+    truth = smooth_surface()
+    depth = truth.copy()
+    band = np.zeros((H, W), bool)
+    band[:, :8] = True
+    hole = disc(60, 17, 10)  # wide, meets the band
+    depth[band | hole] = np.nan
+    res = fill_depth(depth, None, "auto", sensor=SENSORS["none"])  # no RGB: wide holes take the thin plate
+    assert "biharmonic" in res.method and res.parts["band"].sum() > 0.9 * band.sum()
+    assert np.array_equal(res.parts["band"] | res.parts["holes"], band | hole)
+    joint = fill_biharmonic(depth, band | hole)  # one solve (filled in turn: 1.4 mm apart at most)
+    np.testing.assert_allclose(res.depth[band | hole], joint[band | hole], rtol=1e-6)
+    assert np.abs(res.depth[band] - truth[band]).max() < 0.03
+
+
 def test_border_band_is_filled_when_narrow():
     truth = smooth_surface()
     depth = truth.copy()

@@ -8,7 +8,8 @@ hole and per hole row (below); ``none`` fills nothing. Whatever the method, the 
 (:func:`rgbd2scene.reconstruct.fill.holes.classify_holes`): every hole pixel on the captured surface.
 Interior holes are filled by the method; then the sensor's border band (and any hole that only the band
 separates from the surface) by a biharmonic fill from the surface and the filled interior, which
-continues the surface's slope to the image edge (``fill_border=False`` leaves the band NaN). On the
+continues the surface's slope to the image edge (``fill_border=False`` leaves the band NaN); ``auto``
+fills the band in the same thin-plate solve as the holes it gives the biharmonic fill (4. below). On the
 bundled sample's own 8 px band it is about as good as a harmonic fill (0.83 mm against 0.78 mm; copying
 the nearest depth: 1.48 mm), and on the wider bands of real masks laid onto other captures (tune split
 of the benchmark) clearly better: worst transplanted row 1.15 times the best plain solver, not 1.51.
@@ -69,6 +70,19 @@ What ``auto`` does
    guidance for holes whose pixels are merely bright and unsaturated: on a report run it also took the
    white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12), hence the test against
    the hole's rim in 2.
+4. **The border band** (shadows in it excepted) is in the biharmonic solve of the holes of 2. and 3.
+   that take the biharmonic fill, as unknowns beside them, rather than extended afterwards from their
+   fills with the band left open while they were solved (where no hole takes it, the band is extended
+   last as for the other methods). A wide band beside a wide hole is one surface to continue: filled in
+   turn, the holes' thin plate ends free at the band and the band's then continues from that edge. On
+   the tuning split: geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM
+   transplant 0: 0.94 -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the
+   choice, 24 -> 23 of 101 rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split
+   and not kept: the band by a harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the
+   harmonic and the biharmonic fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of
+   the band's rim (0.787, 4 rows) or, per pixel, of the surface within the band's width (0.792, 4 rows),
+   and a separate biharmonic solve of band and all holes from the valid depth alone (0.786, 3 rows, one
+   more solve).
 ``FillResult.method`` names the base fills used, e.g. ``"auto: background+biharmonic+nyu_colorization"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two
 counts for both).
@@ -250,7 +264,8 @@ def fill_depth(
         "classify_seconds": round(classify_s, 4),
         "seconds": round(time.perf_counter() - t0, 4),
     }
-    parts = {"shadow": shadow & filled, "holes": interior & ~shadow & ~rest & filled, "band": rest & filled}
+    extended = (band & ~shadow) | rest  # auto's joint solve may have filled the band already
+    parts = {"shadow": shadow & filled, "holes": interior & ~shadow & ~rest & filled, "band": extended & filled}
     return FillResult(out.astype(np.float32), filled, used, settings, stats, parts)
 
 
@@ -288,7 +303,14 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
     needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
     across = stepped[labels] & rest
-    fills = _base_fills(out, rgb, {name: (rest, across) for name in sorted(needed)})
+    jobs = {name: (rest, across) for name in sorted(needed)}
+    edge = band & ~shadow
+    joint = "biharmonic" in jobs and edge.any()
+    if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
+        jobs["biharmonic"] = (rest | edge, across)
+    fills = _base_fills(out, rgb, jobs)
+    if joint:
+        out[edge] = fills["biharmonic"][edge]
     for k in chosen:
         sel = rest & (per_pixel == k)
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
