@@ -29,6 +29,7 @@ from rgbd2scene.cli import main
 from rgbd2scene.dataset import layout as ds_layout
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
+from rgbd2scene.groundtruth.geometry_cache import CACHE_DIR
 from rgbd2scene.groundtruth.synthetic import write_plane_dataset
 from tests.browser import Browser, chromium
 from tests.conftest import BUNDLED_SAMPLE, SHARED_SAMPLES
@@ -101,9 +102,11 @@ def npz_bytes(root: Path) -> dict[str, bytes]:
 
 
 def leftovers(root: Path) -> list[str]:
-    """Scratch folders and hidden files anywhere under ROOT (none may survive a finished build)."""
+    """Scratch folders and hidden files anywhere under ROOT (none may survive a finished build); a scene's mesh
+    cache (``scenes/NAME/.cache/``, :mod:`rgbd2scene.groundtruth.geometry_cache`) is kept on purpose."""
     return sorted(p.relative_to(root).as_posix() for p in root.rglob("*")
-                  if p.name.startswith(".") or p.name == ".work" or p.name.endswith(".blend@"))
+                  if (p.name.startswith(".") or p.name.endswith(".blend@"))
+                  and not (p.name == CACHE_DIR or p.parent.name == CACHE_DIR))
 
 
 @pytest.fixture(scope="module")
