@@ -181,8 +181,8 @@ class Renderer:
 
         scene.render.use_motion_blur = False  # the Vector pass needs it off
         scene.render.use_file_extension = True
-        # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the BVH
-        # build (sync 0.004 s instead of 0.1-0.2 s per frame on a 300k-vertex mesh). The data renders turn
+        # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the mesh
+        # sync, and with the meshes instanced (_share_rigid_meshes) their BVH build too. The data renders turn
         # it off (configure_data): with it, their normals depended on what the process rendered before
         # (one float32 step apart between a resumed and an uninterrupted run); fresh, they are identical.
         scene.render.use_persistent_data = bool(options.persistent_data)
