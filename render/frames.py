@@ -78,6 +78,8 @@ EXR_PASSES = {"depth": ("Depth", "Z"), "normal": ("Normal", "XYZ"), "vector": ("
 POSE_TOLERANCE = 1e-5
 #: Vertex group and Mask modifier that cut a part down to what a data render needs (``Renderer.mask_views``).
 VIEW_MASK = "rgbd2scene_in_view"
+#: Name prefix of the hidden second user of a rigid mesh (:meth:`Renderer._share_rigid_meshes`).
+BVH_INSTANCE = "rgbd2scene_bvh_instance"
 
 
 class WorkerError(RuntimeError):
@@ -179,8 +181,8 @@ class Renderer:
 
         scene.render.use_motion_blur = False  # the Vector pass needs it off
         scene.render.use_file_extension = True
-        # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the BVH
-        # build (sync 0.004 s instead of 0.1-0.2 s per frame on a 300k-vertex mesh). The data renders turn
+        # keep Cycles' scene between the RGB renders of a chunk: back-to-back renders then skip the mesh
+        # sync, and with the meshes instanced (_share_rigid_meshes) their BVH build too. The data renders turn
         # it off (configure_data): with it, their normals depended on what the process rendered before
         # (one float32 step apart between a resumed and an uninterrupted run); fresh, they are identical.
         scene.render.use_persistent_data = bool(options.persistent_data)
@@ -225,6 +227,33 @@ class Renderer:
         need_geometry = self.maps and (self.moving or cull) and not self.from_model
         self.geometry = SceneGeometry(description, scene_dir) if need_geometry else None
         self.view_masks = self._add_view_masks() if self.maps and cull and not self.from_model else []
+        if self.persistent_data and not (self.maps and not self.from_model):
+            self._share_rigid_meshes()
+
+    def _share_rigid_meshes(self) -> None:
+        """Give every rigid mesh (no shape keys, no modifiers) a second, hidden user, so that Cycles keeps its
+        BVH between the frames of a chunk.
+
+        Cycles' final renders use a static BVH: a mesh with one user gets its object's transform baked into
+        its vertices and its triangles go into one flat BVH, which is rebuilt whole whenever any object moves,
+        and the scope's lights move with the camera every frame (0.25 CPU s per stereo frame on a 300k-vertex
+        mesh). A mesh with two users is instanced instead: its own BVH is built once and only the small top
+        level is rebuilt. The second user sees only volume-scatter rays, which these scenes never trace (no
+        volumes), so no ray can hit it. Intersections then happen in object space: the image is the same
+        render up to float rounding in the hit points (1-spp noise differs pixel by pixel, the statistics do
+        not: benchmarks/results/issue16.md section 3). Only where Blender renders no data passes (their
+        bytes stay as they were)."""
+        for obj in [o for o in self.scene.objects if o.type == "MESH"]:
+            if obj.data.shape_keys is not None or obj.modifiers:
+                continue  # its evaluated mesh is the object's own: a second object would not share it
+            twin = obj.copy()
+            twin.name = f"{BVH_INSTANCE}_{obj.name}"
+            twin.animation_data_clear()
+            twin.pass_index = 0  # not a part of the scene model (pose and id checks look up parts by id)
+            for ray in ("camera", "diffuse", "glossy", "transmission", "shadow"):
+                setattr(twin, f"visible_{ray}", False)
+            twin.visible_volume_scatter = True  # one ray type left on, else Cycles drops it (no second user)
+            self.scene.collection.objects.link(twin)
 
     def _add_view_masks(self) -> list[ViewMask]:
         """A Mask modifier (first in the stack, after the shape keys; off in RGB renders) and its vertex group

@@ -117,6 +117,8 @@ def test_model_maps_equal_blenders_passes(both):
 
 
 def test_resumed_model_ground_truth_is_byte_identical(scene, both, tmp_path):
+    """Ground truth and images: Cycles keeps its scene (and the instanced meshes' BVHs) within a chunk only,
+    so a chunk's first frame must render as it does in the middle of one."""
     model, _ = both
     out = tmp_path / "ds"
     render_dataset(scene, out, samples=1, denoise="none", progress=False, end=2)
@@ -125,6 +127,7 @@ def test_resumed_model_ground_truth_is_byte_identical(scene, both, tmp_path):
         for eye in ds.EYES:
             p = ds.frame_paths(out, eye, f).gt
             assert p.read_bytes() == ds.frame_paths(model, eye, f).gt.read_bytes(), (eye, f)
+            assert ds.frame_paths(out, eye, f).rgb.read_bytes() == ds.frame_paths(model, eye, f).rgb.read_bytes()
         assert ds.geometry_path(out, f).read_bytes() == ds.geometry_path(model, f).read_bytes()
 
 
