@@ -16,15 +16,17 @@ project's one Blender entry point (a render task run by ``run_task``). The phase
 - per frame, what Cycles reports (:mod:`render.timing`: its status steps, both eyes) for the RGB render:
   **sync** (scene export and update), **BVH**, **trace** (first to last sample, denoising included),
   **save** (Blender encoding and writing the PNGs); **rgb python**: the rest of the frame's RGB phase
-  (frame change, pose checks, installing files);
+  (frame change, pose checks, developing and writing the images; pipelined: frame i renders while frame
+  i-1 is developed, so a frame's share can be negative, the sum over the frames is not);
 - **denoising**: Cycles reports no step of its own, so every size also renders the static scene with
   ``--denoise none`` (same frames, alternating with the default run): denoising = trace with the default
   denoiser - trace without, per frame, taken as the same for every scene of that size (its cost depends on
   the pixel count, not on the scene); **path tracing** = trace - denoising;
-- **gt render**: the data render of the ground truth (Cycles' sync, BVH, trace and save of the EXRs);
-  **gt python**: the frame's share of the rest of the ground-truth phase (view masks, reading the passes,
-  the maps, the model's occlusion maps, npz compression; partly overlapped with the data render: the data
-  phase is pipelined, so a frame's share can be negative, the sum over the frames is not);
+- **gt render**: the data render of the ground truth (Cycles' sync, BVH, trace and save of the EXRs), zero
+  with the default ``--gt-source model``; **gt python**: with the model's ground truth (computed in a
+  low-priority child process beside the render), the wait its maps added after the last image; with
+  ``--gt-source blender``, the frame's share of the rest of the ground-truth phase (reading the passes, the
+  maps, npz writes; pipelined like the RGB phase);
 - **exit**: the task's wall time minus all of the above (the end of the chunk and the process exit).
 
 Shares are of the task's wall time. The machine is shared: compare rows of one run, not runs.
