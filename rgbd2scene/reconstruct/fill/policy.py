@@ -142,8 +142,8 @@ class FillResult:
     stats : JSON-serialisable statistics (fractions of the image, hole counts, seconds).
     parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadows,
         filled from their far end), ``"holes"`` (the interior holes, by the method or ``auto``'s choice
-        per hole) and ``"band"`` (the border band and the holes only it separates from the surface,
-        extended from the surface).
+        per hole) and ``"band"`` (the border band and the holes only it separates from the surface: in the
+        thin plate of the holes beside it, or extended from the surface afterwards).
     """
 
     depth: np.ndarray
