@@ -54,11 +54,11 @@ Per family, the summary gives auto's error over each row's best reference method
 worst, rows above 1.10), compares ``auto`` with the best single reference method over the family (each
 method scored by the geometric mean over the family's rows of its error over the row's best reference
 method), and counts the rows where ``auto`` is more than 10 % worse than the best of every plain solver;
-then it lists each row that misses the goal with what auto used, what did best, and where auto's error
-lies: its share of the MAE on the pixels of each part of its fill (``FillResult.parts``: occlusion
-shadows filled from the far side, interior holes filled by the per-hole choice, the border band
-in the thin plate of the holes beside it or extended from the surface afterwards) and on the hidden pixels it left open, each against the best reference
-method's share on the same pixels.
+then it lists each row that misses the goal with what auto used, what did best, and where auto's error lies:
+its share of the MAE on the pixels of each part of its fill (``FillResult.parts``: occlusion shadows filled
+from the far side, interior holes filled by the per-hole choice, the border band in the thin plate of the
+holes beside it or extended from the surface afterwards) and on the hidden pixels it left open, each against
+the best reference method's share on the same pixels.
 """
 
 from __future__ import annotations
@@ -504,7 +504,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{ratios.max():.2f}.\n\n" + misses(rows) + "\n\n"
         "`where`: auto's share of the all-pixel MAE (mm) on the hidden pixels of each part of its fill (shadow: "
         "occlusion shadows filled from their far end; holes: interior holes, filled by the per-hole choice; band: "
-        "the border band and what only it separates from the surface, in the holes' thin plate or extended afterwards; unfilled: left "
+        "the border band and what only it separates from the surface, in the holes' thin plate or extended "
+        "afterwards; unfilled: left "
         "open as outside the captured surface), against the best reference method's share on the same pixels "
         "(which method that is may differ from part to part).\n\n"
         "Median time per 640x480 fill (s): " + ", ".join(f"{m} {t:.2f}" for m, t in times.items())
