@@ -145,7 +145,8 @@ class RenderOptions:
     prefilter: str = option(DEFAULT_PREFILTER, "oidn: how its albedo and normal guides are cleaned: fast, accurate "
                             "(Blender's default, about 4x the cost) or none", choices=PREFILTERS, resume=True)
     engine: str = option("cycles", "the RGB render's engine: cycles (CPU), cycles-gpu (OptiX, CUDA, HIP, oneAPI or "
-                         "Metal, the first found), cycles-optix, cycles-cuda or cycles-hip", choices=tuple(ENGINES))
+                         "Metal, the first found), cycles-optix, cycles-cuda or cycles-hip", choices=tuple(ENGINES),
+                         resume=True)
     threads: int = option(0, "render threads (0: all cores)")
     chunk: int = option(DEFAULT_CHUNK, "frames per worker process (Blender grows in memory over long renders)")
     seed: int = option(0, "Cycles seed (animated per frame)", resume=True)

@@ -439,6 +439,15 @@ def test_resume_skips_and_rerenders(scene_a, tmp_path):
     # other settings into the same folder: refused
     with pytest.raises(UserError, match="other settings"):
         render_dataset(scene_a, out, frames=2, gt="all", samples=1, progress=False)
+    with pytest.raises(UserError, match=r"other settings \(render\.engine\)"):  # GPU frames would not match
+        render_dataset(scene_a, out, frames=2, gt="depth,segmentation", samples=1, engine="cycles-optix",
+                       progress=False)
+    record = json.loads((out / "dataset.json").read_text())["render"]
+    assert record["engine"] == "cycles" and record["blender_engine"] == "CYCLES"
+    info = json.loads((out / "dataset.json").read_text())  # an older dataset: Blender's engine name recorded
+    info["render"]["engine"] = "CYCLES"
+    (out / "dataset.json").write_text(json.dumps(info))
+    assert render_dataset(scene_a, out, frames=2, gt="depth,segmentation", samples=1, progress=False)["skipped"] == 2
 
 
 def test_gt_none_writes_only_images(scene_a, tmp_path):

@@ -118,7 +118,8 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
     rel = Path(os.path.relpath(scene_dir.resolve(), out_dir.resolve()))
     table = description.object_table()
     render = to_record(options)
-    render.update(engine="CYCLES", sampling_pattern=RGB_SAMPLING_PATTERN, gt=list(options.maps),
+    render.update(blender_engine=ENGINES[options.engine].blender, sampling_pattern=RGB_SAMPLING_PATTERN,
+                  gt=list(options.maps),
                   gt_render=GT_RENDER if options.gt_source == "blender" else GT_MODEL)
     return {
         "width": intr.width, "height": intr.height, "frames": frames, "fps": description.path.fps,
@@ -155,6 +156,8 @@ def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path
     options, e.g. those of the ground truth)."""
     diffs = [k for k in RESUME_KEYS if existing.get(k) != info[k]]
     old = existing.get("render", {})
+    if old.get("engine") == "CYCLES":  # older datasets recorded Blender's engine name, always Cycles on the CPU
+        old = {**old, "engine": "cycles"}
     diffs += [f"render.{k}" for k in resume_diff(options, {**old, "gt": ",".join(old.get("gt", [])) or "none"})
               if only is None or k in only]
     if existing.get("scene", {}).get("scene_json_sha1") != info["scene"]["scene_json_sha1"]:
