@@ -18,7 +18,6 @@ import ctypes.util
 import gc
 import json
 import os
-import resource
 import sys
 import time
 import traceback
@@ -32,6 +31,7 @@ from rgbd2scene.worker_protocol import (
     Task,
     end_line,
     parse_line,
+    peak_rss_mb,
     ready_line,
     tie_to_parent,
 )
@@ -133,19 +133,6 @@ def _release_free_memory() -> None:
         ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         pass
-
-
-def peak_rss_mb(reset: bool = False) -> float:
-    """This process's peak resident memory (MB) since it started or since the last ``reset`` (Linux's
-    ``VmHWM``, reset through ``/proc/self/clear_refs``; elsewhere the peak of the whole process)."""
-    try:
-        status = Path("/proc/self/status").read_text()
-        peak = next(int(line.split()[1]) for line in status.splitlines() if line.startswith("VmHWM:")) / 1024.0
-        if reset:
-            Path("/proc/self/clear_refs").write_text("5")
-        return peak
-    except (OSError, StopIteration, ValueError):
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def serve(say) -> int:

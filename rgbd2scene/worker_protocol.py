@@ -124,9 +124,27 @@ def resident_mb() -> float:
         with open("/proc/self/statm") as f:
             return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
     except (OSError, ValueError, IndexError):
-        import resource
+        return _lifetime_peak_mb()
 
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+def peak_rss_mb(reset: bool = False) -> float:
+    """This process's peak resident memory (MB) since it started or since the last ``reset`` (Linux's
+    ``VmHWM``, reset through ``/proc/self/clear_refs``; elsewhere the peak of the whole process)."""
+    try:
+        with open("/proc/self/status") as f:
+            peak = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:")) / 1024.0
+        if reset:
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")
+        return peak
+    except (OSError, StopIteration, ValueError):
+        return _lifetime_peak_mb()
+
+
+def _lifetime_peak_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def frame_line(index: int, what: str, seconds: float | None = None, **stats: float) -> str:

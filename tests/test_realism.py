@@ -77,7 +77,7 @@ def test_darkening_halves_brightness_and_keeps_contrast_and_colour():
     image = rng.uniform(20, 230, (40, 50, 3))
     dark = 0.5 * image
     assert m.brightness(dark) == pytest.approx(0.5 * m.brightness(image), rel=1e-12)
-    assert m.brightness(image) == pytest.approx(np.mean(image @ [0.299, 0.587, 0.114]), rel=1e-12)
+    assert m.brightness(image) == pytest.approx(np.mean(image @ [0.2126, 0.7152, 0.0722]), rel=1e-12)
     assert m.rms_contrast(dark) == pytest.approx(m.rms_contrast(image), rel=1e-12)
     np.testing.assert_allclose(m.chromaticity(dark), m.chromaticity(image), rtol=1e-12)
 

@@ -30,9 +30,8 @@ from __future__ import annotations
 import numpy as np
 
 from rgbd2scene.reconstruct.texture import HighlightSettings
+from rgbd2scene.sensor import tone
 
-#: Rec. 601 luma weights (of the 8-bit sRGB values, as OpenCV's RGB-to-grey conversion).
-LUMA = np.array([0.299, 0.587, 0.114])
 #: Spectral power at and above this spatial frequency (cycles per pixel) counts as fine detail.
 HIGH_FREQUENCY = 0.25
 #: Median of |N(0, 1)|: turns a median absolute deviation into a standard deviation.
@@ -53,8 +52,8 @@ def _mask(image: np.ndarray, mask: np.ndarray | None) -> np.ndarray:
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 601 luma of the 8-bit values: float64 (H, W), 0-255."""
-    return np.asarray(rgb, np.float64) @ LUMA
+    """Luma of the 8-bit values (Rec. 709 weights, as the sensor's auto exposure meters): float64 (H, W), 0-255."""
+    return tone.luminance(np.asarray(rgb, np.float64))
 
 
 def brightness(rgb: np.ndarray, mask: np.ndarray | None = None) -> float:

@@ -23,6 +23,7 @@ import numpy as np
 
 from rgbd2scene.sensor.estimate import trimmed_mean
 from rgbd2scene.sensor.settings import SensorOptions
+from rgbd2scene.sensor.tone import luminance
 
 #: Bisection bounds of log E and its step count (precision 2^-22 of the range, 1e-5: below the 1e-4 the
 #: records keep).
@@ -61,8 +62,7 @@ def meter(linear: np.ndarray, options: SensorOptions) -> float:
 
     def luma(log_e: float) -> float:
         enc = develop_clean(sample, math.exp(log_e), options, vign)
-        y = 0.2126 * enc[..., 0] + 0.7152 * enc[..., 1] + 0.0722 * enc[..., 2]
-        return trimmed_mean(y * 255.0)
+        return trimmed_mean(luminance(enc) * 255.0)
 
     lo, hi = LOG_E_RANGE
     if luma(hi) < options.target:  # black frame: as bright as the system goes

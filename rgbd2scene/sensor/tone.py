@@ -47,7 +47,11 @@ def to_uint8(v: np.ndarray) -> np.ndarray:
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 709 luminance of linear RGB (..., 3)."""
+    """Rec. 709 weights (sRGB's primaries) of RGB (..., 3): luminance of linear values, luma of encoded ones.
+
+    The project's one brightness convention: auto exposure, the sensor's brightness statistics and the realism
+    report all weigh R, G and B with it.
+    """
     rgb = np.asarray(rgb)
     return 0.2126 * rgb[..., 0] + 0.7152 * rgb[..., 1] + 0.0722 * rgb[..., 2]
 
