@@ -178,8 +178,9 @@ class ServingWorker:
                     events, end = [], None
                 else:
                     events, end = _follow(self.proc.stdout, on_event, t0)
-            except BaseException:
+            except BaseException:  # interrupted: the worker ends, and so does its log
                 _stop(self.proc)
+                self.log.close()
                 raise
             self.tasks += 1
             if end is None:  # the process died during the task
