@@ -179,6 +179,20 @@ def main(argv: list[str] | None = None) -> int:
         progress.close()
 
 
+def quick_exit(status: int) -> None:
+    """End the process without Blender's teardown, which frees every data-block one by one (0.2-0.3 s per
+    worker, on the caller's critical path: it waits for the exit) where the system frees it all at once.
+    Everything the task wrote is closed by then; what the teardown would also do is delete Blender's session
+    temporary folder, so that is done here."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if "bpy" in sys.modules:
+        import shutil
+
+        shutil.rmtree(sys.modules["bpy"].app.tempdir, ignore_errors=True)
+    os._exit(status)
+
+
 if __name__ == "__main__":
     tie_to_parent()  # first, before anything slow (importing bpy): a worker never outlives its caller
-    sys.exit(main())
+    quick_exit(main())

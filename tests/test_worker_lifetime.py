@@ -181,3 +181,17 @@ def test_sigterm_stops_the_cli_and_its_worker(quad_scene, tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 1 and not _alive(worker)
     assert "render worker failed (exit status -15)" in err
+
+
+def test_a_finished_worker_leaves_no_blender_temporary_folder(quad_scene, tmp_path):
+    """The worker ends without Blender's teardown (render/worker.py ``quick_exit``), which would also have
+    deleted Blender's session folder: it must still go."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    done = subprocess.run([sys.executable, "-m", "rgbd2scene.cli", "render", str(quad_scene), "-o",
+                           str(tmp_path / "ds"), "--size", "64x32", "--frames", "1", "--gt", "depth", "--quiet",
+                           "--no-sheet"],
+                          env={**os.environ, "TMPDIR": str(tmp)}, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "ds" / "left" / "gt" / "000000.npz").is_file()
+    assert not list(tmp.glob("blender_*"))
