@@ -93,8 +93,9 @@ GT_SOURCES = ("model", "blender")
 #: on three frames (tuned on one, checked on two), at 1/6.9 of the CPU time of a 16-sample render of the same scene
 #: with all ground truth (issue16.md section 3). The ``fast`` network (session 7) halves the denoiser's CPU time
 #: (0.18 instead of 0.34 CPU s per 512x256 image) for equal or better PSNR (+0.0 to +0.8 dB) and SSIM within 0.0025,
-#: but keeps about 0.15 less of the pixel-scale texture (the sweep's detail measure) than ``high``, which
-#: ``--denoise-quality high`` restores (the previous default, 1/5.6 of the 16-sample render's CPU time). Blue noise
+#: but keeps about 0.15 less of the pixel-scale texture (the sweep's detail measure) than ``high``, and on metal
+#: (the instrument scene) scores 0.15-0.27 dB / 0.005 SSIM lower: a trade for the cost, which
+#: ``--denoise-quality high`` undoes (the previous default, 1/5.6 of the 16-sample render's CPU time). Blue noise
 #: instead of the blend's tabulated Sobol pattern: +0.2 dB after denoising, 0.5 dB less noise at 16 samples, same
 #: cost. No setting within six times less than the 16-sample render reaches 40 dB / 0.97: OIDN smears the tissue's
 #: pixel-scale texture and the coat's glints on it (4 spp: 37-40 dB; denoising diffuse and glossy apart: +0.3 dB,
