@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The figures of issue 16, side by side in one run (Cycles on CPU, the bundled 300k-triangle sample).
 
-Usage: ``python benchmarks/bench_issue16.py [--sections gt gt_only visionblender] [--long-frames N] [--out MD]``
+Usage: ``python benchmarks/bench_issue16.py [--sections gt gt_only visionblender] [--long-frames N]
+[--vb-repeats N] [--vb-other-quality high] [--out MD]``
 
 The scene is ``bench_render.py``'s (``rgbd2scene scene`` on ``data_samples/tissue``, scan path of 100 frames,
 512x256 rig, baked tissue detail), built into ``bench_out/render/scene`` unless it is there already.
@@ -19,8 +20,9 @@ The scene is ``bench_render.py``'s (``rgbd2scene scene`` on ``data_samples/tissu
    VisionBlender's add-on does (one multilayer 32-bit EXR per eye and frame, a plain ``bpy`` script on the
    same blend: no exact ground truth, no sensor model). Wall times of the whole runs (process start
    included), alternating, and their CPU seconds (this process and its workers: less dependent on other
-   load). The quality of each setting against the 256-sample reference is
-   ``bench_render.py``'s quality sweep on the same scene (``benchmarks/results/render.md``).
+   load). ``--vb-other-quality`` adds, in each round, the default with another OpenImageDenoise network (a
+   before/after row; rounds alternate which of the two goes first). The quality of each setting against the
+   256-sample reference is ``bench_render.py``'s quality sweep on the same scene (``benchmarks/results/render.md``).
 4. **Memory of one worker** (``memory``): ``--memory-frames`` frames at 64x32 with all ground truth in one
    worker (one chunk), its resident memory at every progress line: whether one process could render far more
    frames than a chunk (the issue's target: flat over 1,000 frames).
@@ -143,33 +145,53 @@ def vb_run(scene: Path, out: Path) -> tuple[float, float]:
     return seconds, cpu
 
 
-def vb_section(scene: Path, repeats: int) -> tuple[str, dict]:
+def vb_section(scene: Path, repeats: int, other_quality: str | None = None) -> tuple[str, dict]:
+    """The default against the VisionBlender-style render, ``repeats`` rounds; with ``other_quality`` each round
+    also renders the default with that OpenImageDenoise network (``--denoise-quality``), between the two (a
+    before/after row in the same run)."""
     default = br.default_setting()
-    ours, vb, ours_cpu, vb_cpu = [], [], [], []
-    for r in range(repeats):
-        out = WORK / "default"
+    runs: dict[str, list[tuple[float, float]]] = {"default": [], "other": [], "vb": []}
+
+    def ours(name: str, **more) -> None:
+        out = WORK / name
         if out.exists():
             shutil.rmtree(out)
         t0, c0 = time.perf_counter(), cpu_seconds()
         render_dataset(scene, out, size=(512, 256), frames=br.PATH_FRAMES, end=VB_FRAMES, gt="all", progress=False,
-                       chunk=VB_FRAMES)
-        ours.append(time.perf_counter() - t0)
-        ours_cpu.append(cpu_seconds() - c0)
-        seconds, cpu = vb_run(scene, WORK / "visionblender")
-        vb.append(seconds)
-        vb_cpu.append(cpu)
-        print(f"  run {r + 1}: default {ours[-1]:.1f} s ({ours_cpu[-1]:.1f} CPU s), VisionBlender-style "
-              f"{vb[-1]:.1f} s ({vb_cpu[-1]:.1f} CPU s)", flush=True)
-    a, b = statistics.median(ours), statistics.median(vb)
-    ac, bc = statistics.median(ours_cpu), statistics.median(vb_cpu)
+                       chunk=VB_FRAMES, **more)
+        runs[name].append((time.perf_counter() - t0, cpu_seconds() - c0))
+
+    for r in range(repeats):
+        order = ("default", "other") if r % 2 == 0 else ("other", "default")
+        for name in order:
+            if name == "default":
+                ours("default")
+            elif other_quality:
+                ours("other", denoise_quality=other_quality)
+        runs["vb"].append(vb_run(scene, WORK / "visionblender"))
+        print(f"  run {r + 1}: " + ", ".join(f"{k} {v[-1][0]:.1f} s ({v[-1][1]:.1f} CPU s)" for k, v in runs.items()
+                                             if v), flush=True)
+    med = {k: (statistics.median(t for t, _ in v), statistics.median(c for _, c in v)) for k, v in runs.items() if v}
+    (a, ac), (b, bc) = med["default"], med["vb"]
     ok = "meets" if b / a >= SPEEDUP_TARGET else "misses"
-    text = (f"| render (10 stereo frames, 512x256) | wall s (median of {repeats}) | CPU s |\n|---|---|---|\n"
-            f"| default: {default.label}, all ground truth (exact, from the scene model) | {a:.1f} | {ac:.1f} |\n"
-            f"| VisionBlender-style: {VB_SAMPLES} spp, fixed, no denoiser, passes of the same render | {b:.1f} "
-            f"| {bc:.1f} |\n\nVisionBlender-style / default = **{b / a:.2f}x** wall ({ok} the {SPEEDUP_TARGET:.0f}x "
-            f"target), {bc / ac:.2f}x CPU time.")
-    return text, {"default_s": a, "visionblender_s": b, "speedup": b / a, "default_cpu_s": ac,
-                  "visionblender_cpu_s": bc, "cpu_speedup": bc / ac}
+    ok_cpu = "meets" if bc / ac >= SPEEDUP_TARGET else "misses"
+    rows = [f"| default: {default.label}, all ground truth (exact, from the scene model) | {a:.1f} | {ac:.1f} "
+            f"| {b / a:.2f}x | {bc / ac:.2f}x |"]
+    if "other" in med:
+        o, oc = med["other"]
+        rows.append(f"| the same with the {other_quality} network (`--denoise-quality {other_quality}`) | {o:.1f} "
+                    f"| {oc:.1f} | {b / o:.2f}x | {bc / oc:.2f}x |")
+    rows.append(f"| VisionBlender-style: {VB_SAMPLES} spp, fixed, no denoiser, passes of the same render | {b:.1f} "
+                f"| {bc:.1f} | 1 | 1 |")
+    text = (f"| render (10 stereo frames, 512x256) | wall s (median of {repeats}) | CPU s | VisionBlender-style / "
+            "this, wall | CPU |\n|---|---|---|---|---|\n" + "\n".join(rows) +
+            f"\n\nVisionBlender-style / default = **{b / a:.2f}x** wall ({ok} the {SPEEDUP_TARGET:.0f}x "
+            f"target), **{bc / ac:.2f}x** CPU time ({ok_cpu} it).")
+    out = {"default_s": a, "visionblender_s": b, "speedup": b / a, "default_cpu_s": ac,
+           "visionblender_cpu_s": bc, "cpu_speedup": bc / ac}
+    if "other" in med:
+        out.update(other_s=med["other"][0], other_cpu_s=med["other"][1])
+    return text, out
 
 
 def _growth_per_1000(series) -> float:
@@ -213,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--long-frames", type=int, default=20, help="frames of the 512x256 GT comparison (issue: 100)")
     ap.add_argument("--gt-only-frames", type=int, default=20)
     ap.add_argument("--vb-repeats", type=int, default=1)
+    ap.add_argument("--vb-other-quality", choices=("fast", "balanced", "high"), default=None,
+                    help="also render the default with this OpenImageDenoise network in each round (before/after)")
     ap.add_argument("--memory-frames", type=int, default=br.PATH_FRAMES,
                     help="frames of the memory run (more than the benchmark scene's path: a longer path is built)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "issue16.md"))
@@ -232,8 +256,8 @@ def main(argv: list[str] | None = None) -> int:
         ("gt", "1. Ground truth vs RGB only", gt_section, args.long_frames),
         ("gt_only", "2. Ground truth without Blender (`render --gt-only`, 512x256)", gt_only_section,
          args.gt_only_frames),
-        ("visionblender", "3. Default vs VisionBlender-style (10 stereo frames, 512x256)", vb_section,
-         args.vb_repeats),
+        ("visionblender", "3. Default vs VisionBlender-style (10 stereo frames, 512x256)",
+         lambda scene, repeats: vb_section(scene, repeats, args.vb_other_quality), args.vb_repeats),
         ("memory", "4. Memory of one worker (64x32)", memory_section, args.memory_frames),
     ]
     for key, heading, section, arg in sections:

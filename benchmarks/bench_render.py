@@ -68,6 +68,7 @@ from rgbd2scene.sensor import SensorOptions  # noqa: E402
 from rgbd2scene.stages.blender import run_task  # noqa: E402
 from rgbd2scene.stages.render import (  # noqa: E402
     DEFAULT_CHUNK,
+    DEFAULT_DENOISE_QUALITY,
     DEFAULT_PREFILTER,
     RenderOptions,
     load_scene,
@@ -114,20 +115,22 @@ class Setting:
     adaptive: bool
     denoise: str
     prefilter: str = DEFAULT_PREFILTER
+    #: OpenImageDenoise's network (``--denoise-quality``); the rows before session 7 were all ``high``.
+    quality: str = "high"
 
     @property
     def label(self) -> str:
-        pre = f" ({self.prefilter} prefilter)" if DENOISERS[self.denoise].prefilter else ""
+        pre = f" ({self.prefilter} prefilter, {self.quality} network)" if DENOISERS[self.denoise].prefilter else ""
         return f"{self.samples} spp, {'adaptive' if self.adaptive else 'fixed'}, {self.denoise}{pre}"
 
     @property
     def slug(self) -> str:
-        pre = f"_{self.prefilter}" if DENOISERS[self.denoise].prefilter else ""
+        pre = f"_{self.prefilter}_{self.quality}" if DENOISERS[self.denoise].prefilter else ""
         return f"s{self.samples}_{'a' if self.adaptive else 'f'}_{self.denoise}{pre}"
 
     def options(self, **more) -> RenderOptions:
         return RenderOptions(samples=self.samples, adaptive=self.adaptive, denoise=self.denoise,
-                             prefilter=self.prefilter, **more)
+                             prefilter=self.prefilter, denoise_quality=self.quality, **more)
 
 
 REFERENCE = Setting(256, False, "none")
@@ -135,9 +138,11 @@ BAKE_SETTING = Setting(16, False, "none")
 BASELINE = Setting(16, False, "none")
 CANDIDATES = (BASELINE, Setting(16, False, "oidn", "fast"), Setting(8, False, "oidn", "accurate"),
               Setting(4, False, "oidn", "accurate"), Setting(4, False, "oidn", "fast"),
-              Setting(2, False, "oidn", "fast"), Setting(1, True, "oidn", "fast"), Setting(1, True, "oidn", "accurate"))
+              Setting(2, False, "oidn", "fast"), Setting(1, True, "oidn", "fast"), Setting(1, True, "oidn", "accurate"),
+              Setting(4, False, "oidn", "fast", "fast"), Setting(2, False, "oidn", "fast", "fast"),
+              Setting(1, True, "oidn", "fast", "fast"))
 QUICK_CANDIDATES = (BASELINE, Setting(4, False, "oidn", "fast"), Setting(2, False, "oidn", "fast"),
-                    Setting(1, True, "oidn", "fast"))
+                    Setting(1, True, "oidn", "fast"), Setting(1, True, "oidn", "fast", DEFAULT_DENOISE_QUALITY))
 #: The quality sweep scores the renderer's output before the sensor model: fixed exposure, no vignetting and no
 #: sensor noise (which would otherwise dominate the error and differ between seeds), only the tone curve.
 QUALITY_SENSOR = SensorOptions(exposure="fixed", vignetting=False, noise=False)
@@ -175,7 +180,7 @@ class WorkerRun:
 def default_setting() -> Setting:
     """The library's default RGB settings (``RenderOptions``'s defaults)."""
     d = RenderOptions()
-    return Setting(d.samples, d.adaptive, d.denoise, d.prefilter)
+    return Setting(d.samples, d.adaptive, d.denoise, d.prefilter, d.denoise_quality)
 
 
 def build_scene(folder: Path, extra: tuple[str, ...] = ()) -> None:

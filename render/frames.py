@@ -200,6 +200,7 @@ class Renderer:
         self.persistent_data = bool(options.persistent_data)
         self.denoiser = DENOISERS[options.denoise]
         self.prefilter = options.prefilter.upper()
+        self.denoise_quality = options.denoise_quality.upper()
         self.rgb_filter_width = float(scene.cycles.filter_width)
         self.rgb_max_bounces = int(scene.cycles.max_bounces)
         # the data render keeps the blend's pattern: its one sample stays where it was (the same passes)
@@ -301,7 +302,7 @@ class Renderer:
         if self.denoiser.blender:
             _apply([(cy, "denoiser", self.denoiser.blender)])
         if self.denoiser.prefilter:
-            _apply([(cy, "denoising_prefilter", self.prefilter)])
+            _apply([(cy, "denoising_prefilter", self.prefilter), (cy, "denoising_quality", self.denoise_quality)])
         _apply([(mask.modifier, "show_render", False) for mask in self.view_masks])
         blur, focus = self.sensor.motion_blur, self.sensor.focus_distance
         _apply([(sc.render, "use_motion_blur", blur > 0), (self.camera.data.dof, "use_dof", focus > 0)])

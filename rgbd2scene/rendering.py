@@ -75,6 +75,10 @@ DENOISERS = {d.name: d for d in (Denoiser("none", None), Denoiser("oidn", "OPENI
 #: albedo and normal guides apart (Blender's default, ~80 % of the denoiser's CPU time), ``fast`` filters them in
 #: the same pass, ``none`` takes them as they are (benchmarks/results/profile.md; render.md, section 7).
 PREFILTERS = ("fast", "accurate", "none")
+#: OpenImageDenoise's network (Cycles' ``denoising_quality``, lower case): ``high`` (Blender's default), ``balanced``
+#: (the same network and cost as ``high`` on the CPU: identical images) and ``fast``, a smaller network at about half
+#: the denoiser's CPU time (benchmarks/results/render.md, section 9).
+DENOISE_QUALITIES = ("fast", "balanced", "high")
 
 #: The data render of Blender's ground-truth passes (``--gt-source blender``; recorded in dataset.json): one
 #: sample through the pixel centre (a pixel filter this narrow keeps it there), no bounces.
@@ -84,16 +88,22 @@ GT_RENDER = {"samples": GT_SAMPLES, "filter_width_px": GT_FILTER_WIDTH_PX, "max_
              "exr": "32-bit float, multilayer", "persistent_data": False}
 
 GT_SOURCES = ("model", "blender")
-#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise, its guides prefiltered ``fast``, and Cycles'
-#: blue-noise sampling pattern: the cheapest point of the quality sweep, 35.2-36.4 dB / SSIM 0.955-0.962 against
-#: 256 samples at 512x256 on two frames not tuned on, at about 1/5.3 of the CPU time of a 16-sample render of the
-#: same scene with all ground truth. Blue noise instead of the blend's tabulated Sobol pattern: +0.2 dB after
-#: denoising, 0.5 dB less noise at 16 samples, same cost. No setting within six times less than the 16-sample
-#: render reaches 40 dB / 0.97: OIDN smears the tissue's pixel-scale texture and the coat's glints on it (4 spp:
-#: 37-40 dB; benchmarks/results/render.md section 8, issue16.md section 3).
+#: RGB defaults: 1 sample per pixel denoised with OpenImageDenoise's ``fast`` network, its guides prefiltered
+#: ``fast``, and Cycles' blue-noise sampling pattern: 35.4-37.3 dB / SSIM 0.954-0.964 against 256 samples at 512x256
+#: on three frames (tuned on one, checked on two), at 1/6.9 of the CPU time of a 16-sample render of the same scene
+#: with all ground truth (issue16.md section 3). The ``fast`` network (session 7) halves the denoiser's CPU time
+#: (0.18 instead of 0.34 CPU s per 512x256 image) for equal or better PSNR (+0.0 to +0.8 dB) and SSIM within 0.0025,
+#: but keeps about 0.15 less of the pixel-scale texture (the sweep's detail measure) than ``high``, and on metal
+#: (the instrument scene) scores 0.15-0.27 dB / 0.005 SSIM lower: a trade for the cost, which
+#: ``--denoise-quality high`` undoes (the previous default, 1/5.6 of the 16-sample render's CPU time). Blue noise
+#: instead of the blend's tabulated Sobol pattern: +0.2 dB after denoising, 0.5 dB less noise at 16 samples, same
+#: cost. No setting within six times less than the 16-sample render reaches 40 dB / 0.97: OIDN smears the tissue's
+#: pixel-scale texture and the coat's glints on it (4 spp: 37-40 dB; denoising diffuse and glossy apart: +0.3 dB,
+#: +0.007 SSIM for two denoiser runs; benchmarks/results/render.md sections 8-9).
 DEFAULT_SAMPLES = 1
 DEFAULT_DENOISE = "oidn"
 DEFAULT_PREFILTER = "fast"
+DEFAULT_DENOISE_QUALITY = "fast"
 RGB_SAMPLING_PATTERN = "BLUE_NOISE"
 DEFAULT_CHUNK = 25
 
@@ -144,6 +154,9 @@ class RenderOptions:
                           resume=True)
     prefilter: str = option(DEFAULT_PREFILTER, "oidn: how its albedo and normal guides are cleaned: fast, accurate "
                             "(Blender's default, about 4x the cost) or none", choices=PREFILTERS, resume=True)
+    denoise_quality: str = option(DEFAULT_DENOISE_QUALITY, "oidn: its network: fast (about half the denoiser's "
+                                  "cost), balanced or high (Blender's default)", choices=DENOISE_QUALITIES,
+                                  resume=True)
     engine: str = option("cycles", "the RGB render's engine: cycles (CPU), cycles-gpu (OptiX, CUDA, HIP, oneAPI or "
                          "Metal, the first found), cycles-optix, cycles-cuda or cycles-hip", choices=tuple(ENGINES),
                          resume=True)
@@ -176,7 +189,7 @@ class RenderOptions:
         denoise = (self.denoise or "none").lower()
         if denoise not in DENOISERS:
             raise OptionError("denoise", f"choose one of {', '.join(DENOISERS)}, got {self.denoise!r}")
-        for name, choices in (("engine", ENGINES), ("prefilter", PREFILTERS)):
+        for name, choices in (("engine", ENGINES), ("prefilter", PREFILTERS), ("denoise_quality", DENOISE_QUALITIES)):
             if getattr(self, name) not in choices:
                 raise OptionError(name, f"choose one of {', '.join(choices)}, got {getattr(self, name)!r}")
         for name in ("samples", "chunk"):

@@ -268,6 +268,25 @@ def _load(out, eye, f):
     return ds.read_frame(out, eye, f)
 
 
+def test_default_denoiser_is_recorded(dataset_b):
+    out, _ = dataset_b
+    render = json.loads((out / "dataset.json").read_text())["render"]
+    # the library's RGB defaults (rgbd2scene.rendering) are what the dataset records and resumes with
+    assert (render["samples"], render["denoise"], render["prefilter"], render["denoise_quality"]) == (
+        1, "oidn", "fast", "fast")
+
+
+def test_denoiser_network_changes_only_the_images(dataset_b, scene_b, tmp_path):
+    """``--denoise-quality`` reaches Cycles (the high network gives other pixels than the default fast one) and
+    leaves the ground truth byte for byte as it was."""
+    out, _ = dataset_b
+    high = tmp_path / "high"
+    render_dataset(scene_b, high, size=(64, 32), samples=1, progress=False, end=1, denoise_quality="high")
+    paths = {name: ds.frame_paths(root, "left", 0) for name, root in (("fast", out), ("high", high))}
+    assert paths["fast"].rgb.read_bytes() != paths["high"].rgb.read_bytes()
+    assert paths["fast"].gt.read_bytes() == paths["high"].gt.read_bytes()
+
+
 def test_dataset_files_and_json(dataset_a):
     out, summary = dataset_a
     assert summary["rendered"] == 3 and summary["skipped"] == 0

@@ -33,10 +33,11 @@ def test_bad_task_files_are_refused(record, message):
 
 
 def test_engines_and_prefilters_are_options():
-    options = RenderOptions(engine="cycles-gpu", prefilter="accurate").validated()
+    options = RenderOptions(engine="cycles-gpu", prefilter="accurate", denoise_quality="high").validated()
     assert ENGINES[options.engine].gpu and not ENGINES["cycles"].gpu
     assert DENOISERS[options.denoise].prefilter and not DENOISERS["none"].prefilter
-    for name, value in (("engine", "eevee"), ("prefilter", "sharp")):
+    assert options.denoise_quality == "high" and RenderOptions().denoise_quality == "fast"
+    for name, value in (("engine", "eevee"), ("prefilter", "sharp"), ("denoise_quality", "ultra")):
         with pytest.raises(OptionError, match=f"choose one of .*got '{value}'") as caught:
             RenderOptions(**{name: value}).validated()
         assert caught.value.name == name

@@ -32,6 +32,7 @@ from rgbd2scene.rendering import (  # noqa: F401 - the stage's options, re-expor
     BYTES_PER_PIXEL,
     DEFAULT_CHUNK,
     DEFAULT_DENOISE,
+    DEFAULT_DENOISE_QUALITY,
     DEFAULT_PREFILTER,
     DEFAULT_SAMPLES,
     ENGINES,
