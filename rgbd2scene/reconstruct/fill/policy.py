@@ -145,10 +145,11 @@ class FillResult:
     method : the method actually used (for ``auto`` what it chose, e.g. ``"auto: background+harmonic"``).
     settings : every setting, JSON-serialisable.
     stats : JSON-serialisable statistics (fractions of the image, hole counts, seconds).
-    parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadows,
-        filled from their far end), ``"holes"`` (the interior holes, by the method or ``auto``'s choice
-        per hole) and ``"band"`` (the border band and the holes only it separates from the surface: in the
-        thin plate of the holes beside it, or extended from the surface afterwards).
+    parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadow
+        runs: the shadows filled from their far end, the rim dropouts beyond them from the near end),
+        ``"holes"`` (the interior holes, by the method or ``auto``'s choice per hole) and ``"band"`` (the
+        border band and the holes only it separates from the surface: in the thin plate of the holes
+        beside it, or extended from the surface afterwards).
     """
 
     depth: np.ndarray
