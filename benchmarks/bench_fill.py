@@ -55,9 +55,10 @@ worst, rows above 1.10), compares ``auto`` with the best single reference method
 method scored by the geometric mean over the family's rows of its error over the row's best reference
 method), and counts the rows where ``auto`` is more than 10 % worse than the best of every plain solver;
 then it lists each row that misses the goal with what auto used, what did best, and where auto's error lies:
-its share of the MAE on the pixels of each part of its fill (``FillResult.parts``: occlusion shadows filled
-from the far side, interior holes filled by the per-hole choice, the border band in the thin plate of the
-holes beside it or extended from the surface afterwards) and on the hidden pixels it left open, each against
+its share of the MAE on the pixels of each part of its fill (``FillResult.parts``: occlusion shadow runs,
+filled from the far side, rim dropouts beyond the shadow from the near side; interior holes filled by the
+per-hole choice; the border band in the thin plate of the holes beside it or extended from the surface
+afterwards) and on the hidden pixels it left open, each against
 the best reference method's share on the same pixels.
 """
 
@@ -503,7 +504,8 @@ def main(argv: list[str] | None = None) -> int:
         f"All rows: geometric mean of auto / best reference {np.exp(np.log(ratios).mean()):.3f}, worst "
         f"{ratios.max():.2f}.\n\n" + misses(rows) + "\n\n"
         "`where`: auto's share of the all-pixel MAE (mm) on the hidden pixels of each part of its fill (shadow: "
-        "occlusion shadows filled from their far end; holes: interior holes, filled by the per-hole choice; band: "
+        "occlusion shadow runs, the shadows filled from their far end and the rim dropouts beyond them from the "
+        "near end; holes: interior holes, filled by the per-hole choice; band: "
         "the border band and what only it separates from the surface, in the holes' thin plate or extended "
         "afterwards; unfilled: left "
         "open as outside the captured surface), against the best reference method's share on the same pixels "

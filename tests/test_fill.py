@@ -161,6 +161,24 @@ def test_step_runs_and_shadow_width():
     assert not shadow_pixels(step_runs(depth_w, wide), depth_w, FX, KINECT_V1.shadow_baselines()).any()
 
 
+def test_a_dropout_on_the_near_rim_beside_a_shadow_is_not_shadow():
+    """Issue 17 section 2, as on the bundled sample's lobe rims: a shadow as wide as the sensor casts and
+    one more hole pixel on the near surface's rim (a dropout) make one run the slack admits as a shadow;
+    the dropout lies where no shadow falls and keeps the near surface's depth, not the far end's."""
+    truth, rgb = step_scene()
+    width = shadow_width(truth, 90, 89, 0.075)
+    depth = truth.copy()
+    # rows 70-99, where the shadow is 5.02-5.07 px wide: the shadow, then the box's first column (a rim dropout)
+    depth[70:100, 90 - width:91] = np.nan
+    res = fill_depth(depth, rgb, "auto", sensor=KINECT_V1)
+    assert res.parts["shadow"][70:100, 90 - width:91].all()  # the whole run is the shadow step's
+    assert np.abs(res.depth[70:100, 90 - width:90] - truth[70:100, 90 - width:90]).max() < 0.02  # far wall
+    assert np.abs(res.depth[70:100, 90] - truth[70:100, 90]).max() < 0.01  # the rim: near, not 1 m off
+    # without colour nothing tells the rim from the shadow's last pixel, which the sensor can shadow
+    runs = step_runs(depth, ~np.isfinite(depth))
+    assert shadow_pixels(runs, depth, FX, KINECT_V1.shadow_baselines())[70:100, 90 - width:91].all()
+
+
 def test_a_slanted_surface_is_not_a_step():
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     truth = (1.0 / (0.2 + 0.006 * v)).astype(np.float32)  # a floor from 5 m to 1.1 m

@@ -17,17 +17,21 @@ Pixels outside the captured surface stay NaN. A hole's size plays no part.
 
 What ``auto`` does
 ------------------
-1. **Occlusion shadows** (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_pixels`): a horizontal run
-   of hole pixels across a depth step, no wider than the shadow the sensor casts there,
-   fx * b * (1/z_near - 1/z_far) + 1 px, on the side the sensor casts it (``Sensor.shadow_baselines``),
-   takes the depth of its far end (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_row_background`):
-   the shadow lies on the far surface. Time-of-flight sensors and ``sensor="none"`` cast no shadows:
-   nothing is filled this way. For the Kinect v1 model, in the real TUM frame the step-bridging hole
-   runs left of a near surface have a median width of 0.96 times the 7.5 cm bound (shadows), those
-   right of it 3.6 times (mostly dropouts), so wider runs are not taken for shadows (a slack of 2 or
-   3 px instead of 1 recognised more of the bundled sample's shadows but took more of its dropouts
-   for shadows, and lost more there than it gained). On the simulated shadows of the benchmark the
-   row fill is twice as accurate as a smooth fill from the far side (harmonic, ``background``).
+1. **Occlusion shadows** (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_pixels`): a horizontal run of
+   hole pixels across a depth step, no wider than the shadow the sensor casts there, fx * b * (1/z_near
+   - 1/z_far) + 1 px, on the side the sensor casts it (``Sensor.shadow_baselines``), takes the depth of
+   its far end (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_row_background`): the shadow lies on
+   the far surface. Only as far as the shadow reaches from the far end
+   (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_split`): a pixel of the run beyond round(width) px
+   of it, whose colour is nearer the near end's, is a dropout on the near surface's rim and takes the
+   near end's depth (issue 17 section 2: the bundled sample's rims). Time-of-flight sensors and
+   ``sensor="none"`` cast no shadows: nothing is filled this way. For the Kinect v1 model, in the real
+   TUM frame the step-bridging hole runs left of a near surface have a median width of 0.96 times the
+   7.5 cm bound (shadows), those right of it 3.6 times (mostly dropouts), so wider runs are not taken
+   for shadows (a slack of 2 or 3 px instead of 1 recognised more of the bundled sample's shadows but
+   took more of its dropouts for shadows, and lost more there than it gained). On the simulated shadows
+   of the benchmark the row fill is twice as accurate as a smooth fill from the far side (harmonic,
+   ``background``).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
    2.5 % of the shorter side), highlights excepted, chosen per hole by evidence from the capture
    (:func:`choose_per_hole`): copies of the hole's own shape are laid onto valid depth nearby (each
@@ -105,7 +109,8 @@ from rgbd2scene.reconstruct.fill.holes import (
     components,
     highlight_pixels,
     hole_copies,
-    shadow_pixels,
+    shadow_runs,
+    shadow_split,
     step_runs,
     valid_depth,
 )
@@ -140,10 +145,11 @@ class FillResult:
     method : the method actually used (for ``auto`` what it chose, e.g. ``"auto: background+harmonic"``).
     settings : every setting, JSON-serialisable.
     stats : JSON-serialisable statistics (fractions of the image, hole counts, seconds).
-    parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadows,
-        filled from their far end), ``"holes"`` (the interior holes, by the method or ``auto``'s choice
-        per hole) and ``"band"`` (the border band and the holes only it separates from the surface: in the
-        thin plate of the holes beside it, or extended from the surface afterwards).
+    parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadow
+        runs: the shadows filled from their far end, the rim dropouts beyond them from the near end),
+        ``"holes"`` (the interior holes, by the method or ``auto``'s choice per hole) and ``"band"`` (the
+        border band and the holes only it separates from the surface: in the thin plate of the holes
+        beside it, or extended from the surface afterwards).
     """
 
     depth: np.ndarray
@@ -278,10 +284,17 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     out = work.copy()
     counts: dict[str, int] = {}
     runs = step_runs(work, todo, step)
-    shadow = shadow_pixels(runs, work, fx, baselines) & todo
+    kept, width = shadow_runs(runs, work, fx, baselines)
+    shadow, rim = shadow_split(kept, width, work.shape, rgb)
+    shadow &= todo
+    rim &= todo
     if shadow.any():
+        # each part of a run has one valid end (the other is the other part): the far end for the
+        # shadow, the near end for the rim beyond the shadow's reach
         out[shadow] = fill_row_background(work, shadow)[shadow]
-        counts["background"] = int(shadow.sum())
+        out[rim] = fill_row_background(work, rim)[rim]
+        counts["background"] = int(shadow.sum() + rim.sum())
+        shadow |= rim
     rest = todo & ~band & ~shadow
     if not rest.any():
         return out, counts, shadow
