@@ -140,19 +140,21 @@ class Renderer:
     """The open scene plus the two render configurations (RGB, data) it switches between."""
 
     def __init__(self, bpy, scene_dir: Path, out_dir: Path, description: SceneDescription,
-                 options: RenderOptions, frames: int, scratch: Path):
+                 options: RenderOptions, frames: int, scratch: Path, gt_process=None):
         self.bpy = bpy
         self.out_dir = out_dir
         self.description = description
         self.frames = int(frames)
         # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check).
         # The model's maps come from a low-priority child process (groundtruth.background), started first: it
-        # loads the model (open3d, the parts' geometry) while Blender opens the scene
+        # loads the model (open3d, the parts' geometry) while Blender opens the scene; ``gt_process``: that child
+        # started already (groundtruth.background.spawn, by the worker before it imported bpy)
         self.from_model = bool(options.maps) and options.gt_source == "model"
         self.model_gt = None
         if self.from_model:
             self.model_gt = BackgroundGroundTruth(Job(description.to_dict(), str(scene_dir), self.frames,
-                                                      list(options.maps), str(out_dir), str(scratch)))
+                                                      list(options.maps), str(out_dir), str(scratch)),
+                                                  process=gt_process)
         blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
@@ -573,8 +575,9 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
     return spent
 
 
-def render_task(bpy, task: Render, say) -> None:
-    """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
+def render_task(bpy, task: Render, say, gt_process=None) -> None:
+    """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line; ``gt_process``: the
+    model's ground-truth child when the worker started it already (:func:`rgbd2scene.groundtruth.background.spawn`)."""
     t0 = time.perf_counter()
     scene_dir, out_dir = Path(task.scene_dir), Path(task.dataset_dir)
     if not (scene_dir / SCENE_BLEND).is_file():
@@ -583,7 +586,7 @@ def render_task(bpy, task: Render, say) -> None:
     options = RenderOptions(**task.render).validated()
     frames = int(task.frames or description.frames)
     with ds.scratch_dir(out_dir) as scratch, contextlib.ExitStack() as stack:
-        renderer = Renderer(bpy, scene_dir, out_dir, description, options, frames, scratch)
+        renderer = Renderer(bpy, scene_dir, out_dir, description, options, frames, scratch, gt_process)
         if renderer.model_gt is not None:  # the model's child process ends with the task
             stack.enter_context(renderer.model_gt)
         say(ready_line(time.perf_counter() - t0, renderer.device))
