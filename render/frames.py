@@ -140,19 +140,23 @@ class Renderer:
     """The open scene plus the two render configurations (RGB, data) it switches between."""
 
     def __init__(self, bpy, scene_dir: Path, out_dir: Path, description: SceneDescription,
-                 options: RenderOptions, frames: int, scratch: Path):
+                 options: RenderOptions, frames: int, scratch: Path, gt_process=None, gt_frames=()):
         self.bpy = bpy
         self.out_dir = out_dir
         self.description = description
         self.frames = int(frames)
         # ground truth from the scene model (groundtruth.model_maps), or from Blender's passes (the cross-check).
         # The model's maps come from a low-priority child process (groundtruth.background), started first: it
-        # loads the model (open3d, the parts' geometry) while Blender opens the scene
+        # loads the model (open3d, the parts' geometry) while Blender opens the scene; ``gt_process``: that child
+        # started already (groundtruth.background.spawn, by the worker before it imported bpy). It is asked for
+        # ``gt_frames`` at once: it computes them while Blender opens the scene (one core) and renders
         self.from_model = bool(options.maps) and options.gt_source == "model"
         self.model_gt = None
         if self.from_model:
             self.model_gt = BackgroundGroundTruth(Job(description.to_dict(), str(scene_dir), self.frames,
-                                                      list(options.maps), str(out_dir), str(scratch)))
+                                                      list(options.maps), str(out_dir), str(scratch)),
+                                                  process=gt_process)
+            self.model_gt.submit(gt_frames)
         blend = scene_dir / SCENE_BLEND
         bpy.ops.wm.open_mainfile(filepath=str(blend))
         scene = self.scene = bpy.context.scene
@@ -515,14 +519,12 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
     """Every RGB frame of the chunk, pipelined: one thread develops frame i-1 (environment, auto exposure,
     sensor, PNGs; in frame order, so each frame's metering is there for the next) while Blender renders frame i.
     With ground truth from the scene model (no data render) the child process ``renderer.model_gt``
-    (:class:`~rgbd2scene.groundtruth.background.BackgroundGroundTruth`) is asked for every frame's maps at the
-    start and writes them meanwhile, in the CPU time the render leaves idle; a frame is done (in frame order)
+    (:class:`~rgbd2scene.groundtruth.background.BackgroundGroundTruth`) was asked for every frame's maps before
+    the blend opened and writes them meanwhile, in the CPU time the render leaves idle; a frame is done (in frame order)
     when its images and its maps are, and the render waits for the maps only after its last image. Returns
     the (wall, CPU) seconds of the frames a data render still has to finish (Blender's passes)."""
-    model = renderer.model_gt
+    model = renderer.model_gt  # asked for every frame of need_gt when it was started (Renderer)
     spent: dict[int, tuple[float, float]] = {}
-    if model is not None:
-        model.submit(need_gt)
     maps_here = set(need_gt) if model is not None else set()  # frames the child writes the maps of
     t_mark, c_mark = time.perf_counter(), _cpu_s()
     t_images = t_mark  # when the latest frame's images were done
@@ -574,8 +576,9 @@ def _rgb_phase(renderer: Renderer, need_rgb: list[int], need_gt: list[int], say)
     return spent
 
 
-def render_task(bpy, task: Render, say) -> None:
-    """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line."""
+def render_task(bpy, task: Render, say, gt_process=None) -> None:
+    """Render frames [task.start, task.end) of the task's dataset; ``say`` sends a protocol line; ``gt_process``: the
+    model's ground-truth child when the worker started it already (:func:`rgbd2scene.groundtruth.background.spawn`)."""
     t0 = time.perf_counter()
     scene_dir, out_dir = Path(task.scene_dir), Path(task.dataset_dir)
     if not (scene_dir / SCENE_BLEND).is_file():
@@ -584,13 +587,13 @@ def render_task(bpy, task: Render, say) -> None:
     options = RenderOptions(**task.render).validated()
     frames = int(task.frames or description.frames)
     with ds.scratch_dir(out_dir) as scratch, contextlib.ExitStack() as stack:
-        renderer = Renderer(bpy, scene_dir, out_dir, description, options, frames, scratch)
+        indices = range(max(task.start, 0), min(task.end or frames, frames))
+        need_rgb = [i for i in indices if not ds.rgb_done(out_dir, i)]
+        need_gt = [i for i in indices if options.maps and not ds.gt_done(out_dir, i, description.deforming)]
+        renderer = Renderer(bpy, scene_dir, out_dir, description, options, frames, scratch, gt_process, need_gt)
         if renderer.model_gt is not None:  # the model's child process ends with the task
             stack.enter_context(renderer.model_gt)
         say(ready_line(time.perf_counter() - t0, renderer.device))
-        indices = range(max(task.start, 0), min(task.end or frames, frames))
-        need_rgb = [i for i in indices if not ds.rgb_done(out_dir, i)]
-        need_gt = [i for i in indices if renderer.maps and not ds.gt_done(out_dir, i, description.deforming)]
         for i in sorted(set(indices) - set(need_rgb) - set(need_gt)):
             say(frame_line(i, "skipped"))
         spent = _rgb_phase(renderer, need_rgb, need_gt, say)

@@ -50,7 +50,7 @@ def build(bpy, job: BuildScene, say, t0: float) -> None:
     say(f"built {job.blend}")
 
 
-def render(bpy, job: Render, say, t0: float) -> None:
+def render(bpy, job: Render, say, t0: float, gt_process=None) -> None:
     from render.frames import WorkerError, render_task
     from render.timing import PhaseClock
 
@@ -67,7 +67,7 @@ def render(bpy, job: Render, say, t0: float) -> None:
         say(line)
 
     try:
-        render_task(bpy, job, say_timed)
+        render_task(bpy, job, say_timed, gt_process=gt_process)
     except WorkerError as exc:
         raise TaskError(str(exc)) from None
 
@@ -89,11 +89,36 @@ def describe(bpy, job: Describe, say, t0: float) -> None:
 HANDLERS = {BuildScene: build, Render: render, Describe: describe}
 
 
+def _model_gt_process(payload):
+    """For a render whose ground truth comes from the scene model: its ground-truth child, started now, so that
+    it imports its libraries (~0.5 CPU s) while this process imports Blender (mostly one core); else None."""
+    if not isinstance(payload, Render):
+        return None
+    from rgbd2scene.rendering import RenderOptions
+
+    try:
+        options = RenderOptions(**payload.render).validated()
+    except Exception:  # noqa: BLE001 - the render handler reports a bad task
+        return None
+    if not (options.maps and options.gt_source == "model"):
+        return None
+    from rgbd2scene.groundtruth.background import spawn
+
+    return spawn()
+
+
 def run(task: Task, say) -> None:
     t0 = time.perf_counter()
-    import bpy
+    gt_process = _model_gt_process(task.payload)
+    try:
+        import bpy
 
-    HANDLERS[type(task.payload)](bpy, task.payload, say, t0)
+        extra = {} if gt_process is None else {"gt_process": gt_process}
+        HANDLERS[type(task.payload)](bpy, task.payload, say, t0, **extra)
+    finally:
+        if gt_process is not None and gt_process.poll() is None:  # never handed its job (the task failed first)
+            gt_process.kill()
+            gt_process.wait()
 
 
 def run_text(text: str, where: str, say) -> int:

@@ -16,7 +16,7 @@ import pytest
 
 from rgbd2scene.files.meshio import write_ply
 from rgbd2scene.geometry.camera import Intrinsics
-from rgbd2scene.groundtruth.background import NICENESS, BackgroundGroundTruth, Job
+from rgbd2scene.groundtruth.background import NICENESS, BackgroundGroundTruth, Job, spawn
 from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath
@@ -118,3 +118,27 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return stat[stat.rindex(")") + 2] != "Z"
+
+
+def test_a_child_started_before_its_job_writes_the_same_bytes_and_ends_at_once(tmp_path):
+    """What the render worker does: :func:`spawn` before it imports Blender, the job once the scene is open."""
+    description = _scene(tmp_path)
+    job = _job(description, tmp_path, tmp_path / "child")
+    model = ModelGroundTruth.of_scene(description, tmp_path, FRAMES, tuple(job.maps))
+    for index in range(FRAMES):
+        model.write(tmp_path / "here", index)
+    process = spawn()
+    time.sleep(0.2)  # the child is importing its libraries, with no job yet
+    assert process.poll() is None
+    with BackgroundGroundTruth(job, process=process) as child:
+        child.submit(range(FRAMES))
+    assert process.returncode == 0  # ended by itself once every frame was written
+    for name in sorted(p.relative_to(tmp_path / "here") for p in (tmp_path / "here").rglob("*.npz")):
+        assert (tmp_path / "child" / name).read_bytes() == (tmp_path / "here" / name).read_bytes(), name
+
+
+def test_a_child_given_no_job_ends_quietly():
+    process = spawn()
+    process.stdin.close()
+    assert process.wait(timeout=120) == 0
+    assert process.stdout.read() == ""

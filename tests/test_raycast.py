@@ -96,3 +96,27 @@ def test_view_support_keeps_every_triangle_around_what_is_in_view(tmp_path):
         in_view = tri[triangles_in_view(geometry.vertices(frame), tri, [(Camera(INTR), e) for e in eyes])]
         touching = np.isin(tri, in_view).any(axis=1)  # triangles sharing a vertex with one in view
         assert kept[tri[touching]].all()
+
+
+def test_smooth_normals_face_the_camera_with_the_bits_of_side_then_orient():
+    """``_facing`` (no face normals in the camera frame except where n . ray is zero or NaN) gives the bits of
+    the formula it replaces: the smooth normal turned to its triangle's seen side, then to the camera."""
+    from rgbd2scene.conventions import orient_normals_to_camera, rotate
+    from rgbd2scene.geometry.raycast import _facing, _side
+
+    rng = np.random.default_rng(3)
+    shape = (40, 50)
+    rays = np.concatenate([rng.normal(0, 0.4, shape + (2,)), np.ones(shape + (1,))], axis=-1)
+    smooth = rng.normal(size=shape + (3,))
+    face = rng.normal(size=shape + (3,))
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    # exact zeros of n . ray (a normal across the ray in x: (-ray_y, ray_x, 0) . ray = 0 exactly), NaN hits, -0
+    smooth[:5, :, 0], smooth[:5, :, 1], smooth[:5, :, 2] = -rays[:5, :, 1], rays[:5, :, 0], 0.0
+    smooth[5:7], face[5:7] = np.nan, np.nan
+    smooth[7, :, 2] = -0.0
+    assert (np.sum(smooth[:5] * rays[:5], axis=-1) == 0).all()
+    face_cam = rotate(R.T, face)
+    expected = orient_normals_to_camera(smooth * _side(face_cam, rays), rays)
+    got = _facing(smooth, rays, face, R)
+    assert got.tobytes() == expected.tobytes()
+    assert (np.sign(got[:5]) != np.sign(smooth[:5])).any() and (np.sign(got[:5]) == np.sign(smooth[:5])).any()

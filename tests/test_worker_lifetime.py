@@ -195,3 +195,46 @@ def test_a_finished_worker_leaves_no_blender_temporary_folder(quad_scene, tmp_pa
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "ds" / "left" / "gt" / "000000.npz").is_file()
     assert not list(tmp.glob("blender_*"))
+
+
+# ================================================================ the ground-truth child started before bpy
+
+def _children(pid: int) -> list[int]:
+    """Live (not zombie) child processes of ``pid``."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            info = _ppid_and_state(int(entry.name))
+            if info is not None and info[0] == pid and info[1] != "Z":
+                out.append(int(entry.name))
+    return out
+
+
+def test_importing_the_render_package_does_not_import_blender():
+    """The worker starts a render's ground-truth child before it imports ``bpy`` (both take about a second)."""
+    code = "import sys, render, render.worker; assert 'bpy' not in sys.modules; print(render.build_scene.__name__)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "build_scene"
+
+
+@pytestmark_linux
+def test_a_serving_worker_ends_the_ground_truth_child_of_a_task_that_failed_before_using_it(tmp_path):
+    """The child is started before the task's scene is opened; when the task fails first, the worker ends the child
+    before it reports the task's end (a serving worker lives on: no child may be left waiting beside it)."""
+    pytest.importorskip("bpy")
+    from rgbd2scene.stages.blender import worker_env
+    from rgbd2scene.worker_protocol import Render, Task
+
+    task = Task(Render(str(tmp_path / "no_scene"), str(tmp_path / "out"), {}, {"size": (64, 32)}, frames=2))
+    worker = subprocess.Popen([sys.executable, "-m", "render.worker", "--serve"], stdin=subprocess.PIPE,
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=worker_env())
+    try:
+        worker.stdin.write(task.to_json() + "\n")
+        worker.stdin.flush()
+        line = worker.stdout.readline()
+        assert line.startswith("end 2"), line  # 2: a problem with the task's inputs (no scene.blend)
+        assert _children(worker.pid) == []
+    finally:
+        worker.stdin.close()
+        worker.wait(timeout=120)

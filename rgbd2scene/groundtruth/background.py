@@ -8,9 +8,15 @@ The child loads the model (open3d, the geometry) while Blender starts up (mostly
 its priority to ``nice`` 19 and computes frames in what Cycles leaves idle (scene sync, denoising, writes);
 what is left when the last image is done runs at full speed.
 
-Protocol (text lines): the parent writes one JSON line (:class:`Job`), then one frame index per line and
-closes stdin when it has no more; the child answers ``done INDEX CPU_SECONDS RSS_MB`` per frame, in the order it
-finishes them. An error ends the child with a traceback on stderr (inherited: the worker's log).
+The child can be started before its job is known (:func:`spawn`, e.g. by the render worker before it imports
+``bpy``): it imports its libraries (Python, numpy, open3d's library: about 0.5 CPU s)
+while the worker imports Blender, and reads the job when the worker has opened its scene.
+
+Protocol (text lines): the parent writes one JSON line (:class:`Job`; an empty stdin: no job, the child ends),
+then one frame index per line and closes stdin when it has no more; the child answers
+``done INDEX CPU_SECONDS RSS_MB`` per frame, in the order it finishes them, and ends at once when the last is
+written (``os._exit``: no interpreter teardown on the render's critical path). An error ends the child with a
+traceback on stderr (inherited: the worker's log).
 """
 
 from __future__ import annotations
@@ -53,6 +59,13 @@ class FrameCost:
     rss_mb: float
 
 
+def spawn(python: str | None = None) -> subprocess.Popen:
+    """Start a ground-truth child (it imports its libraries at once, then waits for a job): hand it to
+    :class:`BackgroundGroundTruth`, or end it (``kill``) when there is no job for it."""
+    return subprocess.Popen([python or sys.executable, "-m", __name__, str(os.getpid())],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+
+
 class BackgroundGroundTruth:
     """A child process writing the ground truth of the frames :meth:`submit` names; :meth:`wait` for each.
 
@@ -60,11 +73,11 @@ class BackgroundGroundTruth:
     (waits for the child; raises if it failed).
     """
 
-    def __init__(self, job: Job, python: str | None = None):
+    def __init__(self, job: Job, python: str | None = None, process: subprocess.Popen | None = None):
+        """``process``: a child started by :func:`spawn` (that has not been given a job yet); default a new one."""
         self._futures: dict[int, Future] = {}
         self._lock = threading.Lock()
-        self._proc = subprocess.Popen([python or sys.executable, "-m", __name__, str(os.getpid())],
-                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+        self._proc = process if process is not None else spawn(python)
         self._proc.stdin.write(json.dumps(asdict(job)) + "\n")
         self._proc.stdin.flush()
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -125,16 +138,25 @@ class BackgroundGroundTruth:
         self._reader.join()
 
 
+def _load_libraries() -> None:
+    """What every job needs, imported before the job arrives (while the worker imports Blender)."""
+    from rgbd2scene.geometry.raycast import open3d_library
+
+    open3d_library()  # the ray caster's library alone (~0.35 CPU s; the whole open3d package ~0.7)
+    import rgbd2scene.groundtruth.model_maps  # noqa: F401 - numpy, the model, the ray caster
+    import rgbd2scene.scene.model  # noqa: F401
+
+
 def _serve(job: Job, say) -> None:
     """Load the model, then compute and write each frame index read from stdin; ``say`` sends a line."""
-    import open3d  # noqa: F401 - the ray caster's library (~1 s): loaded with the model, before the nice
-
+    from rgbd2scene.geometry.raycast import set_threads
     from rgbd2scene.groundtruth.model_maps import ModelGroundTruth
     from rgbd2scene.scene.model import SceneDescription
     from rgbd2scene.worker_protocol import resident_mb
 
     model = ModelGroundTruth.of_scene(SceneDescription.from_dict(job.description), job.scene_dir, job.frames,
                                       tuple(job.maps))
+    set_threads(1)  # frames are computed THREADS at a time: each cast on its own thread, no pool beside it
     os.nice(NICENESS)  # loaded at the render's priority (beside Blender's start-up, mostly one core); frames after
     lock = threading.Lock()
 
@@ -165,15 +187,16 @@ def main(argv: list[str]) -> int:
         progress.write(line + "\n")
         progress.flush()
 
-    job = Job(**json.loads(sys.stdin.readline()))
-    _serve(job, say)
-    return 0
+    _load_libraries()
+    line = sys.stdin.readline()
+    if line.strip():  # else no job: the parent had none for us
+        _serve(Job(**json.loads(line)), say)
+    # every frame is written and announced: end now, without the interpreter's teardown (open3d's and numpy's
+    # modules, ~0.2 s) that the render worker would wait for
+    progress.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 if __name__ == "__main__":
-    status = main(sys.argv[1:])
-    # no interpreter teardown (open3d's and numpy's modules freed one by one, ~0.2 s): the render worker waits
-    # for this process to end, and every file it wrote is closed
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(status)
+    sys.exit(main(sys.argv[1:]))

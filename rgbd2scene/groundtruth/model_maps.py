@@ -22,6 +22,7 @@ independent cross-check of these maps (``render --gt-source blender``, ``tests/t
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +37,19 @@ from rgbd2scene.scene.model import SceneDescription
 EYES = ("left", "right")
 
 
+@lru_cache(maxsize=4)
+def _pixel_grid(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pixel_grid`, made once per image size (read-only)."""
+    grid = pixel_grid(height, width)
+    for a in grid:
+        a.flags.writeable = False
+    return grid
+
+
 def _pixel_offsets(camera: Camera, points_cam: np.ndarray) -> np.ndarray:
     """(H, W, 2) float32: where camera-frame points (H, W, 3) project, minus each pixel's centre."""
     u, v = camera.project(points_cam)
-    gu, gv = pixel_grid(camera.height, camera.width)
+    gu, gv = _pixel_grid(camera.height, camera.width)
     return np.stack([u - gu, v - gv], axis=-1).astype(np.float32)
 
 
@@ -72,7 +82,7 @@ class ModelGroundTruth:
         rig, geometry, maps = self.description.rig, self.geometry, self.maps
         camera = rig.camera(eye)
         T = self.description.camera_pose(index, eye)
-        hit = geometry.cast(index, camera, T, normals="smooth" if "normals" in maps else "none")
+        hit = geometry.cast(index, camera, T, normals="smooth" if "normals" in maps else "none", face_normals=False)
         surface = hit["triangle_ids"] >= 0
         depth = hit["depth"]
         out: dict[str, np.ndarray] = {}

@@ -206,11 +206,11 @@ class SceneGeometry:
         return np.flatnonzero(keep)
 
     def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray,
-             normals: str = "smooth") -> dict[str, np.ndarray]:
+             normals: str = "smooth", face_normals: bool = True) -> dict[str, np.ndarray]:
         """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``) plus ``instance_ids``
         (H, W) uint16 (0 on a miss)."""
         rc = self.raycaster(frame, camera, T_world_cam)
-        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True)
+        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True, face_normals=face_normals)
         tri = hit["triangle_ids"]
         hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids[np.maximum(tri, 0)], 0).astype(np.uint16)
         return hit
@@ -235,8 +235,16 @@ class SceneGeometry:
             key = self._frame_key(frame)
             if key not in followed:
                 vertices = self.vertices(frame)
-                followed[key] = sum(w * vertices[corners[..., k]] for k, w in enumerate(weights))
-                followed[key].flags.writeable = False  # shared by the callers
+                # 0 + w0 p0 + w1 p1 + w2 p2 in this order (as sum() adds them), in two buffers
+                point, term = vertices.take(corners[..., 0], axis=0), np.empty(corners.shape)
+                point *= weights[0]
+                point += 0
+                for k in (1, 2):
+                    vertices.take(corners[..., k], axis=0, out=term)
+                    term *= weights[k]
+                    point += term
+                point.flags.writeable = False  # shared by the callers
+                followed[key] = point
             return followed[key]
 
         return at
