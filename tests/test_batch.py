@@ -426,7 +426,11 @@ def test_kill_9_then_resume_equals_an_uninterrupted_build(reference, captures):
     time.sleep(0.5)  # the killed Blender workers' files
     assert list(root.glob("*/.work/*")), "the killed worker left no scratch folder to sweep"
     assert half_done(), "no frame had its images but not its ground truth (or the reverse) when killed"
-    kept = {p: p.stat().st_ino for p in root.glob("*/*/rgb/*.png")}
+    # a frame is finished when both eyes' images are there (killed between the two, it is rendered again)
+    stereo = {(p.parents[2], p.name) for p in root.glob("*/left/rgb/*.png")} & \
+             {(p.parents[2], p.name) for p in root.glob("*/right/rgb/*.png")}
+    kept = {p: p.stat().st_ino for p in root.glob("*/*/rgb/*.png") if (p.parents[2], p.name) in stereo}
+    assert kept
     assert run_dataset(config, "-o", root) == 0
     assert npz_bytes(root) == npz_bytes(reference)
     assert {p: p.stat().st_ino for p in kept} == kept  # finished images were not rendered again
