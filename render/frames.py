@@ -150,7 +150,7 @@ class Renderer:
         # loads the model (open3d, the parts' geometry) while Blender opens the scene; ``gt_process``: that child
         # started already (groundtruth.background.spawn, by the worker before it imported bpy). It is asked for
         # ``gt_frames`` at once: it computes them while Blender opens the scene (one core) and renders
-        self.from_model = bool(options.maps) and options.gt_source == "model"
+        self.from_model = options.gt_from_model
         self.model_gt = None
         if self.from_model:
             self.model_gt = BackgroundGroundTruth(Job(description.to_dict(), str(scene_dir), self.frames,

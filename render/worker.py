@@ -100,7 +100,7 @@ def _model_gt_process(payload):
         options = RenderOptions(**payload.render).validated()
     except Exception:  # noqa: BLE001 - the render handler reports a bad task
         return None
-    if not (options.maps and options.gt_source == "model"):
+    if not options.gt_from_model:
         return None
     from rgbd2scene.groundtruth.background import spawn
 

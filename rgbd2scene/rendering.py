@@ -218,3 +218,8 @@ class RenderOptions:
     @property
     def maps(self) -> tuple[str, ...]:
         return parse_maps(self.gt)
+
+    @property
+    def gt_from_model(self) -> bool:
+        """Whether the ground truth is ray-cast from the scene model (no data render in Blender)."""
+        return bool(self.maps) and self.gt_source == "model"

@@ -235,7 +235,8 @@ class SceneGeometry:
             key = self._frame_key(frame)
             if key not in followed:
                 vertices = self.vertices(frame)
-                # 0 + w0 p0 + w1 p1 + w2 p2 in this order (as sum() adds them), in two buffers
+                # 0 + w0 p0 + w1 p1 + w2 p2 in this order, as sum() added them (its 0 turns -0.0 into 0.0: the
+                # same bits), in two buffers
                 point, term = vertices.take(corners[..., 0], axis=0), np.empty(corners.shape)
                 point *= weights[0]
                 point += 0

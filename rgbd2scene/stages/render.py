@@ -272,7 +272,7 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     options = scene_environment(options, description)
     n, s, e = frame_range(options, description, scene_dir)
     description = render_model(description, options)
-    if options.maps and options.gt_source == "model" and not all(
+    if options.gt_from_model and not all(
             (scene_dir / part.geometry).is_file() for _, part in description.parts()):
         options = replace(options, gt_source="blender")  # a scene folder with its .blend only: Blender's passes
     if options.maps and options.gt_source == "blender" and not description.rig.rectified:
