@@ -177,6 +177,8 @@ def test_a_dropout_on_the_near_rim_beside_a_shadow_is_not_shadow():
     # without colour nothing tells the rim from the shadow's last pixel, which the sensor can shadow
     runs = step_runs(depth, ~np.isfinite(depth))
     assert shadow_pixels(runs, depth, FX, KINECT_V1.shadow_baselines())[70:100, 90 - width:91].all()
+    with_colour = shadow_pixels(runs, depth, FX, KINECT_V1.shadow_baselines(), rgb=rgb)
+    assert with_colour[70:100, 90 - width:90].all() and not with_colour[70:100, 90].any()
 
 
 def test_a_slanted_surface_is_not_a_step():

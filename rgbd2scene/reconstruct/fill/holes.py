@@ -589,7 +589,8 @@ def shadow_split(runs: StepRuns, width: np.ndarray, shape, rgb: np.ndarray | Non
 
 
 def shadow_pixels(
-    runs: StepRuns, depth: np.ndarray, fx: float, baselines: tuple[float, float], slack_px: float = 1.0
+    runs: StepRuns, depth: np.ndarray, fx: float, baselines: tuple[float, float], slack_px: float = 1.0,
+    rgb: np.ndarray | None = None,
 ) -> np.ndarray:
     """Hole pixels of horizontal step runs no wider than an occlusion shadow can be there
     (:func:`shadow_runs`), where the sensor can have cast one (:func:`shadow_split`).
@@ -602,13 +603,15 @@ def shadow_pixels(
     baselines : (b for holes left of the near surface, b for holes right of it), metres; 0 disables
         (``Sensor.shadow_baselines()``).
     slack_px : extra width allowed, px.
+    rgb : (H, W, 3) colour, optional: tells the rim dropouts beyond the shadow's reach apart; without it
+        every pixel of a kept run is shadow.
 
     Returns
     -------
     bool (H, W)
     """
     kept, width = shadow_runs(runs, depth, fx, baselines, slack_px)
-    return shadow_split(kept, width, depth.shape)[0]
+    return shadow_split(kept, width, depth.shape, rgb)[0]
 
 
 # ----------------------------------------------------------------------------------------------
