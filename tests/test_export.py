@@ -3,11 +3,14 @@ hand parser of the PFM header) and compared with the dataset's npz files."""
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 
 from rgbd2scene.cli import main
 from rgbd2scene.dataset import Dataset
+from rgbd2scene.dataset.layout import frame_paths, write_gt
 from rgbd2scene.export import FORMATS
 from rgbd2scene.export.kitti import encode_disparity, encode_flow
 from rgbd2scene.groundtruth.synthetic import PlaneScene, write_plane_dataset
@@ -157,3 +160,19 @@ def test_export_bad_inputs_exit_2(dataset, tmp_path, capsys):
     assert main(["export", str(dataset.root), "--format", "kitti", "-o", str(blocker), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and str(blocker) in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("name", ["kitti", "sceneflow", "visionblender"])
+def test_a_dataset_without_disparity_is_refused_before_anything_is_written(dataset, tmp_path, capsys, name):
+    # a raw (distorted) pair, or a render whose --gt left disparity out: the first frame's left file lacks it
+    root = tmp_path / "ds"
+    shutil.copytree(dataset.root, root)
+    first = frame_paths(root, "left", 0).gt
+    with np.load(first) as z:
+        kept = {k: z[k] for k in z.files if k != "disparity"}
+    write_gt(first, kept)
+    out = tmp_path / name
+    assert main(["export", str(root), "--format", name, "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "000000.npz" in err and "disparity" in err
+    assert not out.exists() or not any(p.is_file() for p in out.rglob("*"))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,6 +27,15 @@ def complete_frames(dataset: Dataset) -> list[int]:
     if not indices:
         raise UserError(f"{dataset.root}: no complete frame to export (render it first)")
     return indices
+
+
+def require_keys(dataset: Dataset, eyes: Iterable[str], keys: Iterable[str]) -> None:
+    """Fail before anything is written when the dataset's ground truth lacks ``keys`` (e.g. ``disparity`` in a
+    raw pair, or a map left out with ``--gt``): checked on the first complete frame of each of ``eyes``, so an
+    export never stops after its first files with a folder that looks like a partial dataset."""
+    first = complete_frames(dataset)[0]
+    for eye in eyes:
+        dataset.gt(eye, first, tuple(keys))  # its UserError names the file and the missing key
 
 
 def frame_indices(dataset: Dataset, progress: bool, desc: str) -> Iterator[int]:

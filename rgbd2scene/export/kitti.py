@@ -34,11 +34,13 @@ import numpy as np
 
 from rgbd2scene.dataset.layout import frame_name
 from rgbd2scene.dataset.reader import Dataset
-from rgbd2scene.export.common import ExportSummary, complete_frames, frame_indices
+from rgbd2scene.export.common import ExportSummary, complete_frames, frame_indices, require_keys
 from rgbd2scene.files.atomic import write_bytes, write_text
 from rgbd2scene.files.images import write_image
 
 DISPARITY_SCALE = 256.0
+#: The left eye's maps every exported frame needs.
+GT_KEYS = ("disparity", "flow_forward")
 FLOW_SCALE = 64.0
 FLOW_OFFSET = 2.0**15
 IMAGE_DIRS = {"left": "image_2", "right": "image_3"}
@@ -89,6 +91,7 @@ def export_kitti(dataset: Dataset, out: str | Path, progress: bool = True) -> Ex
     """Write the KITTI-style folder (see the module docstring) frame by frame."""
     out = Path(out)
     summary = ExportSummary("kitti", out)
+    require_keys(dataset, ("left",), GT_KEYS)
     complete = set(complete_frames(dataset))
     calib = calib_text(dataset.K, dataset.baseline, dataset.width, dataset.height)
     too_far = 0
@@ -101,7 +104,7 @@ def export_kitti(dataset: Dataset, out: str | Path, progress: bool = True) -> Ex
             if index - 1 in complete:
                 write_bytes(out / folder / f"{frame_name(index - 1)}_11.png", data)
                 summary.files += 1
-        gt = dataset.gt("left", index, ("disparity", "flow_forward"), optional=("occluded_forward",))
+        gt = dataset.gt("left", index, GT_KEYS, optional=("occluded_forward",))
         disparity = encode_disparity(gt["disparity"])
         too_far += int((np.isfinite(gt["disparity"]) & (disparity == 0)).sum())
         write_image(out / "disp_occ_0" / f"{name}_10.png", disparity)

@@ -26,7 +26,7 @@ import numpy as np
 
 from rgbd2scene.dataset.layout import EYES, frame_name
 from rgbd2scene.dataset.reader import Dataset
-from rgbd2scene.export.common import ExportSummary, complete_frames, frame_indices
+from rgbd2scene.export.common import ExportSummary, complete_frames, frame_indices, require_keys
 from rgbd2scene.files.atomic import write_bytes
 from rgbd2scene.files.flowio import write_flo, write_pfm
 
@@ -45,6 +45,7 @@ def export_sceneflow(dataset: Dataset, out: str | Path, progress: bool = True) -
     """Write the SceneFlow-style folder (see the module docstring) frame by frame."""
     out = Path(out)
     summary = ExportSummary("sceneflow", out)
+    require_keys(dataset, EYES, ("disparity", *FLOW_DIRS))
     complete = set(complete_frames(dataset))
     for index in frame_indices(dataset, progress, "export sceneflow"):
         name = frame_name(index)

@@ -36,7 +36,7 @@ import numpy as np
 from rgbd2scene.conventions import invert_pose
 from rgbd2scene.dataset.layout import EYES
 from rgbd2scene.dataset.reader import Dataset, ObjectEntry
-from rgbd2scene.export.common import ExportSummary, frame_indices
+from rgbd2scene.export.common import ExportSummary, frame_indices, require_keys
 from rgbd2scene.files.atomic import atomic_path, write_bytes
 
 SUFFIX = {"left": "_L", "right": "_R"}
@@ -82,6 +82,7 @@ def export_visionblender(dataset: Dataset, out: str | Path, progress: bool = Tru
     """Write the VisionBlender-style folder (see the module docstring) frame by frame."""
     out = Path(out)
     summary = ExportSummary("visionblender", out)
+    require_keys(dataset, EYES, KEYS)
     objects = dataset.objects
     for index in frame_indices(dataset, progress, "export visionblender"):
         for eye in EYES:
