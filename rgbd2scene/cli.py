@@ -302,7 +302,9 @@ def _args_evaluate(p: argparse.ArgumentParser) -> None:
                    "a sanity row), or none (default sgbm,elas)")
     p.add_argument("--predictions", action="append", metavar="[NAME=]DIR",
                    help="score an external method: DIR holds NNNNNN.npy (float32 left disparity, pixels) or "
-                   "NNNNNN.pfm per frame (for a batch root, DIR/<sequence>/...); repeatable")
+                   "NNNNNN.pfm per frame (for a batch root, DIR/<sequence>/...); a raw dataset's in the rectified grid "
+                   "of its calibration.yaml (cv2.stereoRectify, alpha 0), where the built-in methods match too; "
+                   "repeatable")
     p.add_argument("--min-depth", type=float, help="nearest depth to search, metres (default: the ground truth's, "
                    "less 10 %%)")
     p.add_argument("--max-depth", type=float, help="farthest depth to search, metres (default: the ground truth's, "

@@ -1,7 +1,8 @@
 """Stereo benchmark on a dataset (``rgbd2scene evaluate``): methods, depth metrics after Eigen et al., reports.
 
 ``evaluate(path, out, options)`` scores SGBM, ELAS, the ground truth itself or external predictions on every
-left/right pair of a dataset folder, or of each ``done`` sequence of a batch ROOT (one table per split).
+left/right pair of a dataset folder, or of each ``done`` sequence of a batch ROOT (one table per split). A raw
+(distorted) pair is matched after rectification and scored at its own pixels (:mod:`rgbd2scene.evaluate.grid`).
 """
 
 from rgbd2scene.evaluate.methods import BUILTIN, DisparityRange, build_methods

@@ -136,7 +136,8 @@ class Elas:
 
 @dataclass
 class PredictionFolder:
-    """Left disparity maps of an external method: ``folder/NNNNNN.npy`` (float32 pixels) or ``NNNNNN.pfm``.
+    """Left disparity maps of an external method: ``folder/NNNNNN.npy`` (float32 pixels) or ``NNNNNN.pfm``; for a
+    raw dataset, in the rectified grid the built-in methods match in (:mod:`rgbd2scene.evaluate.grid`).
 
     Non-finite and non-positive values are invalid predictions. A missing or unreadable file, or one of the
     wrong size, is an error naming the file (a frame is never silently skipped)."""

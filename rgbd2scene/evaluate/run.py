@@ -13,6 +13,7 @@ from rgbd2scene.batch.manifest import MANIFEST
 from rgbd2scene.dataset.layout import DATASET_JSON
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
+from rgbd2scene.evaluate.grid import MatchingGrid
 from rgbd2scene.evaluate.methods import DisparityRange, build_methods, dataset_depth_range, parse_prediction_arg
 from rgbd2scene.evaluate.metrics import FrameScore, score_frame, summarize
 from rgbd2scene.evaluate.report import SummaryRow, error_map, write_tables
@@ -106,20 +107,26 @@ def evaluate(path: str | Path, out: str | Path | None = None, options: Evaluatio
         ds = seq.dataset
         try:
             z_range = options.depth_range or dataset_depth_range(ds)
-            search = DisparityRange.from_depths(*z_range, ds.fx, ds.baseline)
+            grid = MatchingGrid.of(ds)
+            search = DisparityRange.from_depths(*z_range, grid.focal, grid.baseline)
             methods = build_methods(ds, list(options.methods), _predictions_for(options, seq, batch), search)
         except ValueError as exc:
             raise UserError(f"{ds.root}: {exc}") from None
-        settings.append(f"{seq.name} ({seq.split}): {ds.width}x{ds.height}, fx {ds.fx:.1f} px, baseline "
-                        f"{1000 * ds.baseline:.1f} mm, depth {1000 * z_range[0]:.1f}-{1000 * z_range[1]:.1f} mm -> "
-                        f"disparities searched {search.low:.1f}-{search.high:.1f} px")
+        settings.append(f"{seq.name} ({seq.split}): {ds.width}x{ds.height}, "
+                        + ("raw pair matched rectified (cv2.stereoRectify, alpha 0; predictions in that grid), "
+                           "scored at the raw pixels, " if grid.raw else "")
+                        + f"fx {grid.focal:.1f} px, baseline {1000 * grid.baseline:.1f} mm, depth "
+                        f"{1000 * z_range[0]:.1f}-{1000 * z_range[1]:.1f} mm -> disparities searched "
+                        f"{search.low:.1f}-{search.high:.1f} px")
+        # a disparity of the matching grid in the dataset's grid (fx of the dataset): what is scored and pictured
+        fallback = search.middle * grid.scoring_focal / grid.focal
         for index in ds.frame_indices():
-            left, right = ds.rgb("left", index), ds.rgb("right", index)
+            left, right = grid.pair(ds.rgb("left", index), ds.rgb("right", index))
             depth = ds.gt("left", index, ("depth",))["depth"]
             for method in methods:
-                pred = method(index, left, right)
+                pred = grid.to_scoring(method(index, left, right))
                 try:
-                    score = score_frame(pred, depth, ds.fx, ds.baseline, search.middle)
+                    score = score_frame(pred, depth, ds.fx, ds.baseline, fallback)
                 except ValueError as exc:
                     raise UserError(f"{ds.root}: method {method.name}, frame {index}: {exc}") from None
                 records.append((seq.split, seq.name, method.name, index, score))

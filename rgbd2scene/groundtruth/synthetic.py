@@ -60,7 +60,7 @@ def _plane_points(scene: PlaneScene, T_world_cam: np.ndarray) -> tuple[np.ndarra
     return np.where(on_plane, t, np.nan), points
 
 
-def _texture(scene: PlaneScene, points: np.ndarray) -> np.ndarray:
+def plane_texture(scene: PlaneScene, points: np.ndarray) -> np.ndarray:
     """RGB uint8 of the plane's texture at world points: sinusoids of 1-4 mm wavelength."""
     rng = np.random.default_rng(scene.seed)
     x, y = points[..., 0], points[..., 1]
@@ -79,7 +79,7 @@ def plane_frame(scene: PlaneScene, eye: str, index: int, frames: int) -> tuple[n
     T = scene.pose(eye, index)
     depth, points = _plane_points(scene, T)
     surface = np.isfinite(depth)
-    rgb = _texture(scene, points)
+    rgb = plane_texture(scene, points)
     rgb[~surface] = 0
     normal = np.array([-scene.tilt, 0.0, 1.0]) / np.hypot(scene.tilt, 1.0)
     normals = orient_normals_to_camera(np.broadcast_to(normal, (*depth.shape, 3)),
