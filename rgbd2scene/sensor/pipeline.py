@@ -5,7 +5,7 @@ the state the auto exposure carries between frames (:mod:`rgbd2scene.sensor.expo
 the linear image (an environment effect such as smoke, a lens-distortion resampling) runs before it. In order:
 
 1. exposure, optical part: times ``exposure.light`` (the light source's share of the scene's light);
-2. vignetting: times V(rho) (:mod:`~rgbd2scene.sensor.vignetting`; the optics only, off by default: the
+2. vignetting: times V(rho) (:mod:`~rgbd2scene.sensor.vignetting`; the optics only, flat by default: the
    light's fall-off is in the render already);
 3. sensor gain: times ``exposure.gain``; this is the raw signal, 0-1 full scale;
 4. Poisson-Gaussian noise on the raw signal (:mod:`~rgbd2scene.sensor.noise`), then clipping at full scale
