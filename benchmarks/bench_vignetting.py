@@ -68,7 +68,8 @@ def _v(fit: RadialFalloff, rho: float) -> float:
     return float(np.clip(fit.at(rho), 0.0, 1.0))
 
 
-def eye_figures(eye: str, real_rgb: np.ndarray, render: Dataset, flat: Dataset) -> tuple[list[str], dict]:
+def eye_figures(eye: str, real_rgb: np.ndarray, render: Dataset, flat: Dataset) -> list[str]:
+    """The markdown section of one eye: its ring profiles and the fits (module docstring, steps 2-3)."""
     rgb, texture = render.rgb(eye, 0), flat.rgb(eye, 0)
     mask = np.zeros(rgb.shape[:2], bool)
     mask[VALID] = True
@@ -98,7 +99,7 @@ def eye_figures(eye: str, real_rgb: np.ndarray, render: Dataset, flat: Dataset) 
     for name, fit in fits.items():
         lines.append(f"| {name} | {fit.k1:.3f} | {fit.k2:.3f} | "
                      + " | ".join(f"{_v(fit, r):.3f}" for r in (0.5, 0.7, 0.9, 1.0)) + " |")
-    return lines, fits
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -117,8 +118,7 @@ def main(argv: list[str] | None = None) -> int:
              f"sensor applies them. Default now: k1 {opts.vignetting_k1:g}, k2 {opts.vignetting_k2:g}"
              f"{'' if opts.vignetting else ' (vignetting off)'}.", ""]
     for eye, path in (("left", LEFT), ("right", RIGHT)):
-        lines, _ = eye_figures(eye, read_image(path), render, flat)
-        parts += lines + [""]
+        parts += eye_figures(eye, read_image(path), render, flat) + [""]
     text = "\n".join(parts)
     print(text)
     out = Path(args.out) if args.out else ROOT / "benchmarks" / "results" / "vignetting.md"
