@@ -8,8 +8,9 @@ Usage: ``python benchmarks/bench_sensor.py [--quick] [--out MD]``
    :class:`rgbd2scene.sensor.SensorOptions` were set from it) and the RIGHT eye (held out): 8-bit luma mean,
    trimmed mean (the auto-exposure target), median, 95th percentile and clipped share (whole frame); the
    Poisson-Gaussian noise fit var = a x + b in the linear domain and the noise sigma per intensity bin;
-   the radial fall-off fit V = 1 + k1 rho^2 + k2 rho^4 and its level at rho = 0.5 (8-pixel border left out).
-   Each with the default it set and the ratio right / left.
+   the radial fall-off fit V = 1 + k1 rho^2 + k2 rho^4 and its level at rho = 0.5 (8-pixel border left out:
+   light and optics together; the vignetting default comes from ``bench_vignetting.py``). Each with the
+   default it set and the ratio right / left.
 2. **Auto exposure on a render** (skipped with ``--no-render``): the bundled sample ``data_samples/tissue``
    through ``rgbd2scene scene`` (scan path, standoff 2, 4 and 8 cm, default light) and ``rgbd2scene render``
    with the sensor defaults (1 frame per standoff in ``--quick``, 3 otherwise, 256x128, RGB only): the light
@@ -67,14 +68,16 @@ def real_figures() -> tuple[list[str], dict]:
             rows.setdefault(key, []).append(value)
         curves[eye] = curve
     default_of = {"luma trimmed mean (target)": defaults.target, "noise a (shot)": defaults.noise_shot,
-                  "noise b (read)": defaults.noise_read, "fall-off k1": defaults.vignetting_k1,
-                  "fall-off k2": defaults.vignetting_k2,
-                  "fall-off V(0.5)": 1 + defaults.vignetting_k1 * 0.25 + defaults.vignetting_k2 * 0.0625}
+                  "noise b (read)": defaults.noise_read}
     lines = ["| measure | left (tuned) | right (held out) | right / left | default |", "|---|---|---|---|---|"]
     for key, (left, right) in rows.items():
         ratio = f"{right / left:.2f}" if left else "-"
         default = f"{default_of[key]:.4g}" if key in default_of else ""
         lines.append(f"| {key} | {left:.4g} | {right:.4g} | {ratio} | {default} |")
+    lines += ["", "The fall-off rows are the frame's whole radial fall-off, its light and its optics together. "
+              "A render has the light's fall-off already, so the sensor's vignetting (default k1 "
+              f"{defaults.vignetting_k1:g}, k2 {defaults.vignetting_k2:g}) is fitted on the frame's digital twin "
+              "instead: `bench_vignetting.py`, `vignetting.md`."]
     lines += ["", "Noise sigma (linear) per intensity bin:", "",
               "| bin mean (linear) | sigma left | sigma right | samples left |", "|---|---|---|---|"]
     left, right = curves["left (tuned)"], curves["right (held out)"]

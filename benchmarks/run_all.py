@@ -12,8 +12,8 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 BENCHMARKS = ["bench_mesh.py", "bench_capture.py", "bench_fill.py", "bench_render.py", "bench_profile.py",
-              "bench_realism.py", "bench_twin.py", "bench_sensor.py", "bench_stereo.py", "bench_export.py",
-              "bench_batch.py", "bench_issue16.py"]
+              "bench_realism.py", "bench_twin.py", "bench_vignetting.py", "bench_sensor.py", "bench_stereo.py",
+              "bench_export.py", "bench_batch.py", "bench_issue16.py"]
 HAS_QUICK = {"bench_capture.py", "bench_fill.py", "bench_render.py", "bench_profile.py", "bench_realism.py",
              "bench_sensor.py",
              "bench_stereo.py", "bench_export.py", "bench_batch.py"}

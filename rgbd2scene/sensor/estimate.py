@@ -15,6 +15,9 @@ report, which compares rendered frames with real ones by the same measures.
   of the 90th percentile of linear luminance in rings (rho = distance / half-diagonal), relative to the
   brightest ring of the central plateau (rho < 0.5). On a real scope this
   is vignetting and illumination fall-off together; albedo changes are what the upper percentile damps.
+- :func:`optical_vignetting` (:func:`radial_profile` of a real frame and of its render without vignetting on
+  the same pixels, then :func:`vignetting_from_profiles`): the fall-off the sensor must add to a render whose
+  light falls off already, a least-squares fit on the ratio of the two profiles with a free level.
 """
 
 from __future__ import annotations
@@ -141,6 +144,15 @@ def fit_poisson_gaussian(curve: NoiseCurve, low: float = FIT_RANGE[0],
 
 
 @dataclass
+class RadialProfile:
+    """Level of linear luminance per ring of rho (distance from the image centre / half-diagonal)."""
+
+    rings: np.ndarray  # ring centres rho
+    levels: np.ndarray  # the ring's percentile of linear luminance (absolute, not normalised)
+    count: np.ndarray  # pixels in the ring
+
+
+@dataclass
 class RadialFalloff:
     """V(rho) = 1 + k1 rho^2 + k2 rho^4 (rho = distance from the image centre / half-diagonal)."""
 
@@ -153,31 +165,107 @@ class RadialFalloff:
     def to_dict(self) -> dict:
         return {"k1": self.k1, "k2": self.k2, "corner": self.corner}
 
+    def at(self, rho: float | np.ndarray) -> float | np.ndarray:
+        """V(rho) of the fit, unclipped."""
+        rho2 = np.asarray(rho, dtype=np.float64) ** 2
+        return 1.0 + self.k1 * rho2 + self.k2 * rho2 * rho2
 
-def radial_falloff(rgb_uint8: np.ndarray, curve: str = "srgb", rings: int = 10, percentile: float = 90.0,
-                   border: int = BORDER) -> RadialFalloff:
-    """Fit the radial brightness fall-off of a frame (linear luminance, ``percentile`` per ring, the brightest
-    ring with rho < :data:`PLATEAU` as 1)."""
-    y = luminance(decode(np.asarray(rgb_uint8, dtype=np.float64) / 255.0, curve))
+
+def linear_luminance(rgb_uint8: np.ndarray, curve: str = "srgb") -> np.ndarray:
+    """Linear-domain luminance (0-1, float64) of encoded 8-bit RGB, decoded through the tone ``curve``."""
+    return luminance(decode(np.asarray(rgb_uint8, dtype=np.float64) / 255.0, curve))
+
+
+def radial_profile(y: np.ndarray, mask: np.ndarray | None = None, rings: int = 10, percentile: float = 90.0,
+                   border: int = BORDER, min_count: int = 50) -> RadialProfile:
+    """The ``percentile`` of ``y`` (H, W) in ``rings`` equal-width rings of rho, from 0 to the largest rho
+    measured; ``border`` pixels left out at each side, and with ``mask`` only its pixels; rings with fewer than
+    ``min_count`` pixels are left out. Two images measured with the same mask share their rings."""
+    y = np.asarray(y, dtype=np.float64)
     h, w = y.shape
     rho = radius_map(w, h)
     keep = np.zeros((h, w), bool)
     keep[border:h - border, border:w - border] = True
+    if mask is not None:
+        keep &= np.asarray(mask, bool)
+    if not keep.any():
+        raise ValueError("no pixel left to measure (mask and border)")
     edges = np.linspace(0.0, float(rho[keep].max()) + 1e-9, rings + 1)
-    centres, levels = [], []
+    centres, levels, counts = [], [], []
     for i in range(rings):
         sel = keep & (rho >= edges[i]) & (rho < edges[i + 1])
-        if sel.sum() < 50:
+        if sel.sum() < min_count:
             continue
         centres.append(0.5 * (edges[i] + edges[i + 1]))
         levels.append(np.percentile(y[sel], percentile))
-    centres, levels = np.array(centres), np.array(levels)
+        counts.append(int(sel.sum()))
+    return RadialProfile(np.array(centres), np.array(levels), np.array(counts))
+
+
+def radial_falloff(rgb_uint8: np.ndarray, curve: str = "srgb", rings: int = 10, percentile: float = 90.0,
+                   border: int = BORDER, mask: np.ndarray | None = None) -> RadialFalloff:
+    """Fit the radial brightness fall-off of a frame (linear luminance, ``percentile`` per ring, the brightest
+    ring with rho < :data:`PLATEAU` as 1; ``mask``: the pixels to use, default all but the border)."""
+    prof = radial_profile(linear_luminance(rgb_uint8, curve), mask, rings, percentile, border)
+    centres = prof.rings
     # the central plateau (rho < 0.5) as 1: its ups and downs are the scene's, not the optics'
-    levels = np.minimum(levels / levels[centres < PLATEAU].max(), 1.0)
+    levels = np.minimum(prof.levels / prof.levels[centres < PLATEAU].max(), 1.0)
     # least squares of (V - 1) on rho^2, rho^4 (V(0) = 1 by construction)
     design = np.stack([centres**2, centres**4], axis=1)
     (k1, k2), *_ = np.linalg.lstsq(design, levels - 1.0, rcond=None)
     return RadialFalloff(float(k1), float(k2), float(1.0 + k1 + k2), centres, levels)
+
+
+def vignetting_from_profiles(real: RadialProfile, render: RadialProfile) -> RadialFalloff:
+    """The vignetting V that a render needs on top of its own fall-off to fall off as a real frame does.
+
+    Both profiles must be measured on the same pixels (same mask, same rings). Per ring, the ratio real /
+    render is fitted by weighted least squares as s V(rho) = s (1 + k1 rho^2 + k2 rho^4), weights sqrt(pixel
+    count): ``s`` is a free level (the exposure sets it, so it says nothing about the fall-off) and V(0) = 1.
+    ``profile`` holds the measured ratio over s. A fit with V > 1 somewhere says the render already falls off
+    more than the real frame there: passive optics cannot brighten, so the sensor's map clips V at 1
+    (:func:`rgbd2scene.sensor.vignetting.vignetting_map`).
+    """
+    if real.rings.shape != render.rings.shape or not np.allclose(real.rings, render.rings):
+        raise ValueError("the two profiles have different rings: measure them with the same mask")
+    if real.rings.size < 3:
+        raise ValueError("need at least three rings to fit a level and two coefficients")
+    ratio = real.levels / np.maximum(render.levels, 1e-12)
+    weight = np.sqrt(real.count)
+    design = np.stack([np.ones_like(real.rings), real.rings**2, real.rings**4], axis=1)
+    (s, a, b), *_ = np.linalg.lstsq(design * weight[:, None], ratio * weight, rcond=None)
+    if s <= 0:
+        raise ValueError("the fitted level is not positive: the profiles do not describe one scene")
+    k1, k2 = a / s, b / s
+    return RadialFalloff(float(k1), float(k2), float(1.0 + k1 + k2), real.rings, ratio / s)
+
+
+def optical_vignetting(real_rgb: np.ndarray, render_rgb: np.ndarray, mask: np.ndarray | None = None,
+                       curve: str = "srgb", rings: int = 10, percentile: float = 90.0,
+                       border: int = BORDER) -> RadialFalloff:
+    """The vignetting to add to a render so that it falls off radially as the real frame does.
+
+    Parameters
+    ----------
+    real_rgb, render_rgb
+        8-bit RGB (H, W, 3) of the same view: the real frame and its render *without* vignetting (e.g. a
+        digital twin at the capture's pose), both encoded with ``curve``. The render must not clip where it
+        is measured (a clipped ring reads too dark): render it at a low fixed exposure.
+    mask
+        Pixels where both images show the scene (e.g. where the render sees a surface and the real frame has
+        no overlay); default all but the ``border``.
+    rings, percentile, border
+        As :func:`radial_falloff`: the ``percentile`` of linear luminance per ring damps albedo changes.
+
+    Returns
+    -------
+    RadialFalloff
+        k1, k2 of :func:`vignetting_from_profiles` (the least-squares fit on the ratio real / render with a
+        free level), and per ring the measured ratio over the fitted level.
+    """
+    real = radial_profile(linear_luminance(real_rgb, curve), mask, rings, percentile, border)
+    render = radial_profile(linear_luminance(render_rgb, curve), mask, rings, percentile, border)
+    return vignetting_from_profiles(real, render)
 
 
 def radius_map(width: int, height: int) -> np.ndarray:

@@ -24,6 +24,7 @@ import numpy as np
 from rgbd2scene.sensor.estimate import trimmed_mean
 from rgbd2scene.sensor.settings import SensorOptions
 from rgbd2scene.sensor.tone import luminance
+from rgbd2scene.sensor.vignetting import sensor_vignetting
 
 #: Bisection bounds of log E and its step count (precision 2^-22 of the range, 1e-5: below the 1e-4 the
 #: records keep).
@@ -53,12 +54,10 @@ def meter(linear: np.ndarray, options: SensorOptions) -> float:
     from rgbd2scene.sensor.pipeline import develop_clean
 
     sample = np.ascontiguousarray(linear[::METER_STRIDE, ::METER_STRIDE])
-    vign = None
-    if options.vignetting:
-        from rgbd2scene.sensor.vignetting import vignetting_map
-
-        vign = vignetting_map(linear.shape[1], linear.shape[0], options.vignetting_k1,
-                              options.vignetting_k2)[::METER_STRIDE, ::METER_STRIDE]
+    # the meter sees what the sensor sees: after the vignetting (the same map as the image, not a second one)
+    vign = sensor_vignetting(options, linear.shape[1], linear.shape[0])
+    if vign is not None:
+        vign = vign[::METER_STRIDE, ::METER_STRIDE]
 
     def luma(log_e: float) -> float:
         enc = develop_clean(sample, math.exp(log_e), options, vign)

@@ -5,7 +5,8 @@ the state the auto exposure carries between frames (:mod:`rgbd2scene.sensor.expo
 the linear image (an environment effect such as smoke, a lens-distortion resampling) runs before it. In order:
 
 1. exposure, optical part: times ``exposure.light`` (the light source's share of the scene's light);
-2. vignetting: times V(rho) (:mod:`~rgbd2scene.sensor.vignetting`);
+2. vignetting: times V(rho) (:mod:`~rgbd2scene.sensor.vignetting`; the optics only, flat by default: the
+   light's fall-off is in the render already);
 3. sensor gain: times ``exposure.gain``; this is the raw signal, 0-1 full scale;
 4. Poisson-Gaussian noise on the raw signal (:mod:`~rgbd2scene.sensor.noise`), then clipping at full scale
    (highlights saturate);
@@ -26,7 +27,7 @@ from rgbd2scene.sensor.noise import poisson_gaussian, rng_for
 from rgbd2scene.sensor.settings import SensorOptions
 from rgbd2scene.sensor.tone import encode, to_uint8, white_balance
 from rgbd2scene.sensor.video import chroma_420, jpeg, single_field
-from rgbd2scene.sensor.vignetting import vignetting_map
+from rgbd2scene.sensor.vignetting import sensor_vignetting
 
 
 @dataclass
@@ -65,7 +66,7 @@ def develop(linear: np.ndarray, frame: int, eye: str, options: SensorOptions, ex
     if linear.ndim != 3 or linear.shape[2] != 3:
         raise ValueError(f"linear image must be (H, W, 3), got {linear.shape}")
     h, w = linear.shape[:2]
-    vign = vignetting_map(w, h, options.vignetting_k1, options.vignetting_k2) if options.vignetting else None
+    vign = sensor_vignetting(options, w, h)
     optical = linear * np.float32(exposure.light)
     if vign is not None:
         optical = optical * vign[..., None]

@@ -9,10 +9,26 @@ RIGHT eye is held out (``benchmarks/bench_sensor.py`` prints both):
 - ``noise_shot`` 2.5e-4, ``noise_read`` 0: the Poisson-Gaussian fit var = a x + b of its linear-domain noise
   (:func:`~rgbd2scene.sensor.estimate.fit_poisson_gaussian`, sRGB decoding; right eye a = 2.2e-4, b = 0).
   The fitted b is 0: below linear 0.02 one 8-bit code step exceeds the read noise, so this frame cannot see it.
-- ``vignetting_k1`` -1.72, ``vignetting_k2`` 0.50: its radial fall-off V = 1 + k1 rho^2 + k2 rho^4
-  (:func:`~rgbd2scene.sensor.estimate.radial_falloff`; right eye -1.92, 0.74), which is the optics and the
-  scope's illumination fall-off together: V(0.5) = 0.60 (right 0.57) and the corners are black (the scope's
-  round field stop).
+- ``vignetting_k1`` 0, ``vignetting_k2`` 0 (a flat map: no optical vignetting on top of the render): the
+  vignetting must add only what the render lacks, and the render already falls off more than the real frame.
+  The real frame's radial fall-off (``radial_falloff`` over the whole frame: k1 -1.72, k2 0.50, V(0.5) 0.60,
+  the defaults until session 8) is the scope's light and its optics together, and the render has the light
+  (the lamps at the tip: inverse square, angle of incidence). Measured by ``benchmarks/bench_vignetting.py``
+  (``benchmarks/results/vignetting.md``): the digital twin of the frame (``--path capture``, the same view)
+  rendered with ``--no-vignetting --no-noise`` at a fixed exposure that clips 0.07 % of its pixels; on the
+  pixels where the twin sees its surface inside the frame's valid area, the 90th percentile of linear
+  luminance in 10 rings (:func:`~rgbd2scene.sensor.estimate.radial_profile`) of the real frame over the
+  render's, fitted as s (1 + k1 rho^2 + k2 rho^4) with a free level s
+  (:func:`~rgbd2scene.sensor.estimate.vignetting_from_profiles`), gives k1 +0.29, k2 +1.19 (right eye -0.29,
+  +3.22, V >= 0.993 everywhere): V >= 1 at every rho, so the vignetting map, clipped at 1, is flat. Per ring
+  the ratio over s grows from about 1 at rho 0.1-0.2 to 1.6 at rho 0.7-0.8 (right 2.3 at rho 0.74): without
+  vignetting the twin is already darker towards the rim than the real frame. The reason: the twin's texture is
+  the real frame itself, whose fall-off is baked in (the unlit twin's profile matches the real one within 0.07
+  per ring), and the render's light adds its own. Against the light's shading alone (render / unlit render)
+  the real frame would leave a rim fall-off (V(0.7) 0.61, right eye 0.27) under a mid-field bump above 1 that
+  no optics makes: not stable enough between the eyes to be a default, and it only applies to a texture
+  without baked light. The real frame's black corners (its field stop, rho > 0.9) lie outside the twin's
+  surface and are not modelled by default; ``--vignetting-k1/-k2`` add a scope's optics.
 - ``tone`` srgb, white balance neutral: one frame without a colour chart fixes neither; the scene's texture
   already holds the capture's own colours.
 """
@@ -50,11 +66,14 @@ class SensorOptions:
                            flag="--exposure-target")
     ae_speed: float = option(0.3, "auto exposure: weight of the newest frame in its smoothing (0-1]")
     ae_window: int = option(10, "auto exposure: frames it remembers (the recursion restarts nowhere else)")
-    light_min: float = option(0.02, "auto exposure: lowest light power, as a share of the scene's light")
+    # 1 % (2 % until session 8): without the old vignetting the bundled sample needs 0.021 of the light at 2 cm
+    # (benchmarks/results/sensor.md); 1 % keeps the near limit of a correct exposure at about 1.4 cm, as before
+    light_min: float = option(0.01, "auto exposure: lowest light power, as a share of the scene's light")
     gain_max: float = option(16.0, "auto exposure: highest sensor gain")
     vignetting: bool = option(True, "no vignetting")
-    vignetting_k1: float = option(-1.72, "vignetting V = 1 + k1 rho^2 + k2 rho^4 (rho: radius / half-diagonal)")
-    vignetting_k2: float = option(0.50, "vignetting rho^4 coefficient")
+    vignetting_k1: float = option(0.0, "vignetting V = 1 + k1 rho^2 + k2 rho^4 (rho: radius / half-diagonal; "
+                                  "the optics only: the light's fall-off is rendered)")
+    vignetting_k2: float = option(0.0, "vignetting rho^4 coefficient")
     noise: bool = option(True, "no sensor noise")
     noise_shot: float = option(2.5e-4, "Poisson-Gaussian noise: variance per unit signal (at gain 1, linear 0-1)")
     noise_read: float = option(0.0, "Poisson-Gaussian noise: signal-independent variance (at gain 1)")

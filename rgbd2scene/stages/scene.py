@@ -38,10 +38,12 @@ from rgbd2scene.scene.rig import DEFAULT_BASELINE, DEFAULT_FOV_X_DEG, DEFAULT_SI
 from rgbd2scene.stages.blender import BuildScene, Task, run_task
 from rgbd2scene.stages.render import parse_size
 
-#: Scope light power, watts (both outlets): auto exposure then runs the light at full power with gain 1 at
-#: about 8 cm from the bundled sample's tissue, dims it nearer (a quarter at the default 4 cm standoff) and
-#: raises the gain farther (measured: benchmarks/bench_sensor.py). The 0.05 W before left a twin at 8 cm at
-#: 0.30 of the real frame's brightness.
+#: Scope light power, watts (both outlets): auto exposure then needs no sensor gain at 8 cm from the bundled
+#: sample's tissue (light at 0.40), dims the light nearer (0.08 at the default 4 cm standoff, 0.02 at 2 cm;
+#: measured: benchmarks/bench_sensor.py, without vignetting since session 8; with the old vignetting it was
+#: full power at 8 cm). The Hamlyn twin runs at light 0.98, gain 1 (benchmarks/results/twin.md): its noise is
+#: then the real frame's noise law at gain 1. The 0.05 W before left a twin at 8 cm at 0.30 of the real frame's
+#: brightness.
 DEFAULT_LIGHT_W = 0.35
 #: The working distance DEFAULT_LIGHT_W was chosen for (metres): beyond it the light grows with the square of
 #: the distance (``SceneOptions.light_for_distance``), as a light source is chosen for its working distance.
