@@ -161,7 +161,9 @@ def test_ground_truth_is_byte_identical_with_detail_on_or_off(tmp_path):
             assert np.isfinite(gt_on["depth"]).mean() > 0.9 and np.isfinite(gt_on["normals"]).all(axis=-1).mean() > 0.9
             rgb_change.append(np.abs(rgb_on.astype(int) - rgb_off.astype(int)).mean())
     print(f"mean |RGB on - off| per image: {np.round(rgb_change, 1)} / 255")
-    assert min(rgb_change) > 3.0  # the detail is there: every image changes
+    # the detail is there: every image changes (2.9-3.4 levels with the flat vignetting default of session 8; two
+    # renders of one scene give the same bytes, so any change is the detail's)
+    assert min(rgb_change) > 2.0
 
 
 def test_scene_command_records_and_builds_the_detail(tmp_path):
