@@ -110,4 +110,56 @@ def test_auto_delights_scope_lit_captures_only():
     assert not delight_choice(rgbd, SceneOptions(), True)[0]
     assert delight_choice(rgbd, SceneOptions(delight="on"), True)[0]
     assert not delight_choice(stereo, SceneOptions(delight="off"), True)[0]
+    assert not delight_choice(stereo, SceneOptions(material="as_captured"), True)[0]  # the render adds no light
     assert not delight_choice(stereo, SceneOptions(delight="on"), False)[0]
+
+
+def _render_plane_row(out, d: float, size: int = 201, scale: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Middle row (x metres, linear radiance) of a white Lambertian plane ``d`` metres before one spot outlet at
+    the camera, set up by ``render.scene_builder.add_scope_light``, seen by an orthographic camera."""
+    bpy = pytest.importorskip("bpy")
+    from render.scene_builder import add_scope_light
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples, scene.cycles.use_denoising, scene.cycles.max_bounces = 64, False, 0
+    scene.render.resolution_x = scene.render.resolution_y = size
+    scene.world = bpy.data.worlds.new("World")
+    scene.world.node_tree.nodes["Background"].inputs["Strength"].default_value = 0.0
+    bpy.ops.mesh.primitive_plane_add(size=1.0, location=(0, 0, -d))
+    material = bpy.data.materials.new("White")
+    bsdf = material.node_tree.nodes["Principled BSDF"]
+    bsdf.inputs["Base Color"].default_value = (1, 1, 1, 1)
+    bsdf.inputs["Roughness"].default_value = 1.0
+    bsdf.inputs["Specular IOR Level"].default_value = 0.0
+    bpy.context.object.data.materials.append(material)
+    camera_data = bpy.data.cameras.new("Camera")
+    camera_data.type, camera_data.ortho_scale, camera_data.clip_start = "ORTHO", scale, 0.001
+    camera = bpy.data.objects.new("Camera", camera_data)
+    scene.collection.objects.link(camera)
+    scene.camera = camera
+    add_scope_light(camera, Light(kind="spot", power_w=1.0, offset=(0.0, 0.0, 0.0), outlets=1))
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(out / "plane.exr")
+    bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(str(out / "plane.exr"))
+    row = np.array(image.pixels[:]).reshape(size, size, 4)[size // 2, :, 0]
+    return (np.arange(size) - size // 2) * scale / size, row
+
+
+def test_the_light_model_is_blenders(tmp_path):
+    """Blender's radiance across a white Lambertian plane 2 cm before the scope light (as the render sets it
+    up) is spot_mask x cos / r^2, the de-lighting's model, inside the cone and across its edge."""
+    d = 0.02
+    x, radiance = _render_plane_row(tmp_path, d)
+    cos_axis = d / np.hypot(x, d)
+    model = spot_mask(cos_axis, Light().spot_size_deg) * cos_axis ** 3 / d ** 2  # cos(incidence) / r^2
+    scale = radiance[len(x) // 2] / model[len(x) // 2]
+    lit = model > 0.05 * model.max()
+    # 3 %: a pixel averages 0.5 mm of the plane, across the cone's steep edge too
+    np.testing.assert_allclose(radiance[lit] / scale, model[lit], rtol=0.03)
+    inner = cos_axis > 0.85  # within 32 degrees: the cone is full, the fall-off is cos / r^2 alone
+    np.testing.assert_allclose(radiance[inner] / scale, model[inner], rtol=0.005)
+    outside = cos_axis < np.cos(np.radians(50.0))  # beyond the cone's half angle: dark (the outlet's 0.5 mm
+    assert radiance[outside].max() < 1e-3 * radiance.max()  # radius lets a trace past the edge)

@@ -97,8 +97,9 @@ class SceneOptions:
     delight: str = option("auto", "divide the capture light's shading out of the texture (inverse-square "
                           "fall-off, incidence angle, spot cone of the scope light at the capture camera), so the "
                           "render's light does not shade it twice: auto (for stereo endoscope captures, lit by the "
-                          "scope's own light; not for RGB-D captures under room light), on or off; the texture "
-                          "as it was is kept as texture_lit.png", choices=DELIGHT_MODES)
+                          "scope's own light; not for RGB-D captures under room light, nor for the unlit "
+                          "as_captured material), on or off; the texture as it was is kept as texture_lit.png",
+                          choices=DELIGHT_MODES)
     scene_config: str | None = option(None, "scene configuration file (TOML or YAML): instruments, meshes, their "
                                       "motions, tracked frames, deformation", metavar="FILE")
 
@@ -235,6 +236,8 @@ def delight_choice(record: dict, options: SceneOptions, textured: bool) -> tuple
         return False, "no texture (the mesh has vertex colours only: fused frames, or no UVs)"
     if options.delight == "on":
         return True, "--delight on"
+    if options.material == "as_captured":
+        return False, "auto: the as_captured material is unlit, so the capture's shading counts once"
     if (record.get("capture") or {}).get("stereo") is not None:
         return True, ("auto: a stereo endoscope capture, lit by the scope's own light at the camera, whose shading "
                       "the render's light would apply a second time")
