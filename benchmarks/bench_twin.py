@@ -2,8 +2,8 @@
 """Digital-twin benchmark: the Hamlyn stereo frame rebuilt as a scene, rendered with the defaults, and compared
 with the real pair by ``rgbd2scene realism`` (every figure as render / real, issue 15's goal bands).
 
-Usage: ``python benchmarks/bench_twin.py [--out MD] [--delight auto|on|off] [--work DIR]`` (``--delight``
-passed to the scene stage; default: the scene stage's default)
+Usage: ``python benchmarks/bench_twin.py [--out MD] [--delight auto|on|off] [--delight-smooth PX] [--work DIR]``
+(``--delight*`` passed to the scene stage; default: the scene stage's defaults)
 
 Real frames: the Hamlyn silicone heart phantom (``../shared/rgbd_samples/hamlyn_silicone_heart_phantom_stereo``,
 one stereo frame, 360x288, calibrated). Measured pixels: the valid area (rows 8-287, columns 8-351: without the
@@ -68,10 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=None, help="markdown report (default benchmarks/results/twin.md; '' to skip)")
     ap.add_argument("--delight", choices=("auto", "on", "off"), default=None,
                     help="the scene stage's --delight (default: its default)")
+    ap.add_argument("--delight-smooth", default=None, help="the scene stage's --delight-smooth (texels)")
     ap.add_argument("--work", default=str(WORK), help=f"work folder, emptied first (default {WORK})")
     args = ap.parse_args(argv)
     work = Path(args.work)
-    delight = [] if args.delight is None else ["--delight", args.delight]
+    delight = ([] if args.delight is None else ["--delight", args.delight]) + (
+        [] if args.delight_smooth is None else ["--delight-smooth", args.delight_smooth])
     if not HAMLYN.is_dir():
         print(f"error: the real frames are absent: {HAMLYN}", file=sys.stderr)
         return 2

@@ -3,8 +3,8 @@
 An endoscope photographs tissue lit by its own light at the camera, so the capture image (the mesh's texture)
 holds that light's shading: inverse-square fall-off with the distance, the cosine of the incidence angle and the
 spot's cone. The render lights the texture again with the modelled light at the tip, so at the capture's own
-pose the shading would count twice. :func:`delight_texture` divides it out, per vertex (each vertex of the grid
-mesh is one texel: its UV is that pixel's centre), in linear light:
+pose the shading would count twice. :func:`delight_texture` divides it out, per texel (each vertex of the grid mesh
+is one texel: its UV is that pixel's centre), in linear light:
 
     E = sum over the outlets of  spot(angle to the light's axis) * max(n . l, 0) / r^2
     albedo = texture_linear * E_ref / max(E, E_ref / MAX_GAIN)
@@ -13,12 +13,19 @@ with the same light model the render builds (:class:`~rgbd2scene.scene.model.Lig
 inverse-square fall-off and spot cone, ``spot_mask``) and the mesh's angle-weighted vertex normals (the normals
 Blender's smooth shading interpolates). ``E_ref`` is the median of E over the meshed texels the light reaches:
 the median texel keeps its value, so the texture's level, which the light's power and the exposure defaults
-were chosen for,
-stays about where it was (the ratio of the mean linear levels is recorded), and rendering at the capture pose
-gives the capture image back up to one exposure factor (the auto exposure's) wherever the clamp did not act.
+were chosen for, stays about where it was (the ratio of the mean linear levels is recorded), and rendering at
+the capture pose gives the capture image back up to one exposure factor (the auto exposure's) wherever the
+clamp and the smoothing did not act.
 The median, not a mean-preserving level: a level that keeps the mean has no solution when many texels lie
 outside the spot's cone (their gain is the clamp's, whatever the level), and it would follow the few texels
 of tiny E.
+
+Smoothing: the shading is divided out low-passed, a Gaussian of ``DELIGHT_SMOOTH_PX`` (5) texels over the meshed
+texels. Stereo depth is noisy at the pixel scale (below the matcher's window, about width / 100), so the mesh's
+per-vertex normals are too: divided out per vertex, the inverse of that noise lands in the albedo (a worm-like
+pattern in the texture). It cancels exactly when the render shades the same normals from the same light, at the
+capture pose only; along any other path it adds to the render's own shading of the noise. On the Hamlyn twin
+(capture pose) per vertex scores better (``benchmarks/results/twin.md``), which is that cancellation.
 
 The clamp: a texel's gain (E_ref / E) is at most ``MAX_GAIN`` (4, two stops). It acts where the surface is at a
 grazing angle to the light (cosine near 0: the depth's normals are least reliable there), where the spot's cone
@@ -39,6 +46,8 @@ from rgbd2scene.sensor.tone import srgb_decode, srgb_encode
 
 #: The largest gain the division may apply to a texel (see the module docstring): two stops.
 MAX_GAIN = 4.0
+#: Gaussian sigma (texels) of the shading map divided out (see the module docstring).
+DELIGHT_SMOOTH_PX = 5.0
 DELIGHT_MODES = ("auto", "on", "off")
 
 
@@ -77,7 +86,7 @@ def texel_indices(uvs: np.ndarray, width: int, height: int) -> tuple[np.ndarray,
 
 def delight_texture(texture: np.ndarray, vertices: np.ndarray, triangles: np.ndarray, uvs: np.ndarray,
                     light: Light, T_world_cam: np.ndarray | None = None,
-                    max_gain: float = MAX_GAIN) -> tuple[np.ndarray, dict]:
+                    max_gain: float = MAX_GAIN, smooth_px: float = 0.0) -> tuple[np.ndarray, dict]:
     """The albedo texture (uint8 RGB, the texture's shape) of a texture lit by ``light`` at ``T_world_cam``, and
     statistics for scene.json. See the module docstring for the method, the level and the clamp.
 
@@ -89,6 +98,7 @@ def delight_texture(texture: np.ndarray, vertices: np.ndarray, triangles: np.nda
     light : the scope light as the render builds it.
     T_world_cam : the capture camera (left eye, OpenCV frame); None: the world frame (CONVENTIONS 1.2).
     max_gain : the largest gain applied to a texel.
+    smooth_px : Gaussian sigma (texels) of the shading map, over the meshed texels only; 0: per vertex.
     """
     h, w = texture.shape[:2]
     T_world_cam = np.eye(4) if T_world_cam is None else np.asarray(T_world_cam, dtype=np.float64)
@@ -101,6 +111,11 @@ def delight_texture(texture: np.ndarray, vertices: np.ndarray, triangles: np.nda
     normals[flip] *= -1.0
     E = irradiance(v[used], normals[used], light, T_world_cam)
     rows, cols = texel_indices(np.asarray(uvs)[used], w, h)
+    if smooth_px > 0:
+        E_map, mask = np.zeros((h, w)), np.zeros((h, w))
+        E_map[rows, cols], mask[rows, cols] = E, 1.0
+        weight = np.maximum(ndi.gaussian_filter(mask, smooth_px), 1e-12)
+        E = (ndi.gaussian_filter(E_map, smooth_px) / weight)[rows, cols]
     linear = srgb_decode(np.asarray(texture, dtype=np.float64) / 255.0)
     seen = linear[rows, cols]
     E_ref = float(np.median(E[E > 0])) if np.any(E > 0) else 1.0  # texels the light reaches

@@ -23,7 +23,7 @@ from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.config import ConfigError, SceneConfig, load_scene_config, parse_scene_config
 from rgbd2scene.scene.deformation import KINDS as DEFORMATIONS
-from rgbd2scene.scene.delight import DELIGHT_MODES, MAX_GAIN, delight_texture
+from rgbd2scene.scene.delight import DELIGHT_MODES, DELIGHT_SMOOTH_PX, MAX_GAIN, delight_texture
 from rgbd2scene.scene.materials import TissueDetail
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
 from rgbd2scene.scene.objects.assemble import Tissue, add_objects
@@ -100,6 +100,10 @@ class SceneOptions:
                           "scope's own light; not for RGB-D captures under room light, nor for the unlit "
                           "as_captured material), on or off; the texture as it was is kept as texture_lit.png",
                           choices=DELIGHT_MODES)
+    delight_smooth: float = option(DELIGHT_SMOOTH_PX, "Gaussian sigma (texels) of the shading --delight divides "
+                                   "out: the depth's pixel-scale normal noise stays out of the texture; 0 divides "
+                                   "each texel by its own vertex's shading (exact only at the capture pose)",
+                                   metavar="PX")
     scene_config: str | None = option(None, "scene configuration file (TOML or YAML): instruments, meshes, their "
                                       "motions, tracked frames, deformation", metavar="FILE")
 
@@ -256,17 +260,21 @@ def delight_scene_texture(out_dir: Path, mesh, record: dict, options: SceneOptio
         return section
     rig, T_world_cam = capture_camera(record, options)
     light = scope_light(options, rig, 1.0)
-    albedo, stats = delight_texture(mesh.texture, mesh.vertices, mesh.triangles, mesh.uvs, light, T_world_cam)
+    if options.delight_smooth < 0:
+        raise UserError(f"--delight-smooth: {options.delight_smooth} texels is negative")
+    albedo, stats = delight_texture(mesh.texture, mesh.vertices, mesh.triangles, mesh.uvs, light, T_world_cam,
+                                    smooth_px=options.delight_smooth)
     write_image(out_dir / folder.TEXTURE_LIT, mesh.texture)
     write_image(out_dir / folder.TEXTURE, albedo)  # atomic: a texture hard-linked from a mesh folder stays
     section.update({
         "method": "albedo = texture / (shading of the scope light at the capture camera), in linear light, per "
                   "texel: shading = sum over outlets of spot cone * cos(incidence) / r^2 (the render's light "
-                  "model, the mesh's angle-weighted vertex normals)",
+                  "model, the mesh's angle-weighted vertex normals), smoothed over smooth_px texels (Gaussian sigma)",
         "light": {k: v for k, v in light.to_dict().items() if k != "power_w"}, "T_world_cam": T_world_cam.tolist(),
         "level": "the median texel the light reaches keeps its value (rendering at the capture pose gives the "
                  "capture back up to the exposure, where the gain was not clamped)",
-        "max_gain": MAX_GAIN, "stats": stats, "texture": folder.TEXTURE, "texture_lit": folder.TEXTURE_LIT})
+        "max_gain": MAX_GAIN, "smooth_px": options.delight_smooth, "stats": stats, "texture": folder.TEXTURE,
+        "texture_lit": folder.TEXTURE_LIT})
     return section
 
 
