@@ -184,3 +184,27 @@ def test_the_light_model_is_blenders(tmp_path):
     np.testing.assert_allclose(radiance[inner] / scale, model[inner], rtol=0.005)
     outside = cos_axis < np.cos(np.radians(50.0))  # beyond the cone's half angle: dark (the outlet's 0.5 mm
     assert radiance[outside].max() < 1e-3 * radiance.max()  # radius lets a trace past the edge)
+
+
+def test_a_de_lit_scene_folder_reused_as_a_mesh_folder_starts_from_the_lit_texture(tmp_path):
+    """``scene --mesh-dir`` of a scene whose texture was de-lit: the new scene gets the lit texture back (to de-light
+    again with its own light, or to keep), never the albedo de-lit a second time."""
+    from rgbd2scene.files.images import read_image, write_image
+    from rgbd2scene.files.meshio import write_ply
+    from rgbd2scene.scene import folder
+    from rgbd2scene.stages.scene import load_mesh_folder
+
+    z, _, _ = _tilted_plane()
+    lit = np.full((H, W, 3), 90, np.uint8)
+    mesh, _ = grid_mesh(z.astype(np.float32), K, lit, max_relative_jump=None)
+    src, out = tmp_path / "scene", tmp_path / "rebuilt"
+    src.mkdir(), out.mkdir()
+    write_ply(src / folder.MESH, mesh)
+    write_image(src / folder.TEXTURE, np.full((H, W, 3), 200, np.uint8))  # the albedo
+    write_image(src / folder.TEXTURE_LIT, lit)
+    (src / folder.SCENE_JSON).write_text('{"delight": {"applied": true}, "files": {"texture_lit": "texture_lit.png"}}')
+    loaded, record = load_mesh_folder(src, out)
+    np.testing.assert_array_equal(loaded.texture, lit)
+    np.testing.assert_array_equal(read_image(out / folder.TEXTURE), lit)
+    np.testing.assert_array_equal(read_image(src / folder.TEXTURE), 200)  # the source folder is untouched
+    assert "delight" not in record and "texture_lit" not in record["files"]
