@@ -2,7 +2,8 @@
 """Digital-twin benchmark: the Hamlyn stereo frame rebuilt as a scene, rendered with the defaults, and compared
 with the real pair by ``rgbd2scene realism`` (every figure as render / real, issue 15's goal bands).
 
-Usage: ``python benchmarks/bench_twin.py [--out MD]``
+Usage: ``python benchmarks/bench_twin.py [--out MD] [--delight auto|on|off] [--delight-smooth PX] [--work DIR]``
+(``--delight*`` passed to the scene stage; default: the scene stage's defaults)
 
 Real frames: the Hamlyn silicone heart phantom (``../shared/rgbd_samples/hamlyn_silicone_heart_phantom_stereo``,
 one stereo frame, 360x288, calibrated). Measured pixels: the valid area (rows 8-287, columns 8-351: without the
@@ -65,24 +66,32 @@ def _cli(*args: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="markdown report (default benchmarks/results/twin.md; '' to skip)")
+    ap.add_argument("--delight", choices=("auto", "on", "off"), default=None,
+                    help="the scene stage's --delight (default: its default)")
+    ap.add_argument("--delight-smooth", default=None, help="the scene stage's --delight-smooth (texels)")
+    ap.add_argument("--work", default=str(WORK), help=f"work folder, emptied first (default {WORK})")
     args = ap.parse_args(argv)
+    work = Path(args.work)
+    delight = ([] if args.delight is None else ["--delight", args.delight]) + (
+        [] if args.delight_smooth is None else ["--delight-smooth", args.delight_smooth])
     if not HAMLYN.is_dir():
         print(f"error: the real frames are absent: {HAMLYN}", file=sys.stderr)
         return 2
     out_md = args.out if args.out is not None else str(ROOT / "benchmarks" / "results" / "twin.md")
     t0 = time.perf_counter()
-    if WORK.exists():
-        shutil.rmtree(WORK)
-    WORK.mkdir(parents=True)
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
     versions = software_versions()
-    print(f"settings: --path capture, frame 0, size {SIZE[0]}x{SIZE[1]}, render defaults, "
+    print(f"settings: --path capture, frame 0, scene {' '.join(delight) or 'defaults'}, "
+          f"size {SIZE[0]}x{SIZE[1]}, render defaults, "
           f"python {versions['python']}, bpy {versions['bpy']}, "
           f"machine {platform.machine()}", flush=True)
 
-    scene, dataset, out = WORK / "scene", WORK / "dataset", WORK / "realism"
+    scene, dataset, out = work / "scene", work / "dataset", work / "realism"
     t = time.perf_counter()
     _cli("scene", "--left", str(LEFT), "--right", str(RIGHT), "--stereo-calib", str(HAMLYN), "--path", "capture",
-         "--no-overview", "-o", str(scene))
+         "--no-overview", *delight, "-o", str(scene))
     t_scene = time.perf_counter() - t
     t = time.perf_counter()
     _cli("render", str(scene), "-o", str(dataset), "--frames", "1", "--quiet", "--no-sheet")
@@ -91,10 +100,10 @@ def main(argv: list[str] | None = None) -> int:
     raw = (meta.get("camera") or {}).get("rectified") is False
     mask = np.zeros((SIZE[1], SIZE[0]), np.uint8)
     mask[VALID] = 255
-    write_image(WORK / "valid_area.png", mask)
+    write_image(work / "valid_area.png", mask)
     t = time.perf_counter()
     real_calib = [] if raw else ["--real-calib", str(HAMLYN)]
-    _cli("realism", str(dataset), "--real", str(LEFT), str(RIGHT), "--real-mask", str(WORK / "valid_area.png"),
+    _cli("realism", str(dataset), "--real", str(LEFT), str(RIGHT), "--real-mask", str(work / "valid_area.png"),
          "--surface-only", *real_calib, "-o", str(out))
     t_realism = time.perf_counter() - t
     report = json.loads((out / "realism.json").read_text())

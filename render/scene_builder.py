@@ -66,7 +66,7 @@ from rgbd2scene.files.images import read_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.scene.deformation import Deformation, rest_normals
-from rgbd2scene.scene.model import Light, SceneDescription, SceneObject
+from rgbd2scene.scene.model import SPOT_BLEND, Light, SceneDescription, SceneObject
 from rgbd2scene.scene.paths import CameraPath
 
 TISSUE = "Tissue"
@@ -360,7 +360,7 @@ def _add_outlet(camera, light: Light, offset, power_w: float, name: str):
     data.shadow_soft_size = light.radius
     if light.kind == "spot":
         data.spot_size = math.radians(min(light.spot_size_deg, 180.0))
-        data.spot_blend = 0.5
+        data.spot_blend = SPOT_BLEND
     obj = bpy.data.objects.new(name, data)
     camera.users_collection[0].objects.link(obj)
     obj.parent = camera

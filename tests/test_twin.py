@@ -49,6 +49,8 @@ def test_twin_frame_0_depth_is_the_captures_filled_depth(tmp_path):
                  "--no-overview", "-o", str(scene)]) == 0
     record = json.loads((scene / "scene.json").read_text())
     assert record["scene"]["path"]["kind"] == "capture"
+    # an RGB-D capture is lit by the room: its texture is left as captured
+    assert not record["delight"]["applied"] and not (scene / "texture_lit.png").exists()
     render_gt_only(scene, out, progress=False)
     _, gt = ds.read_frame(out, "left", 0, rgb=False)
     filled = np.load(scene / "depth_filled.npy")
@@ -82,7 +84,11 @@ def test_stereo_twin_is_the_calibrated_pair_at_the_capture(shared_samples, tmp_p
     meta = json.loads((out / "dataset.json").read_text())
     assert (meta["width"], meta["height"]) == (360, 288) and meta["camera"]["rectified"] is False
     np.testing.assert_allclose(meta["camera"]["left"]["fx"], np.loadtxt(hamlyn / "calib.left.intrinsic.txt")[0, 0])
-    record = json.loads((scene / "scene.json").read_text())["capture"]
+    full = json.loads((scene / "scene.json").read_text())
+    record = full["capture"]
+    # a stereo endoscope capture: --delight auto divides the scope light out of the texture, keeping the lit one
+    assert full["delight"]["applied"] and full["files"]["texture_lit"] == "texture_lit.png"
+    assert (scene / "texture_lit.png").is_file() and full["delight"]["stats"]["clamped_share"] < 0.01
     _, gt = ds.read_frame(out, "left", 0, rgb=False)
     np.testing.assert_array_equal(gt["T_world_cam"], np.eye(4))
     camera = Camera.from_K(gt["K"], 360, 288, gt["D"])

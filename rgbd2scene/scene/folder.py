@@ -5,7 +5,7 @@ SCENE/scene.json          the record (written last: a folder with it is complete
 SCENE/scene.blend         the Blender scene
 SCENE/mesh.ply            the tissue surface (binary PLY, vertex colours, UVs, metres, world frame)
 SCENE/depth_filled.npy    the capture depth the mesh was built from
-SCENE/mesh.obj/.mtl, mesh_texture.png, texture_original.png, overview.png
+SCENE/mesh.obj/.mtl, mesh_texture.png, texture_original.png, texture_lit.png, overview.png
 SCENE/objects/<id>.ply    each rigid object part, in its own frame (and <id>_texture.png if textured)
 ```
 """
@@ -19,6 +19,7 @@ TEXTURED_MESH = f"{MESH_NAME}.obj"
 MATERIAL_LIBRARY = f"{MESH_NAME}.mtl"
 TEXTURE = f"{MESH_NAME}_texture.png"
 TEXTURE_ORIGINAL = "texture_original.png"  # the capture image as captured, when highlights were removed
+TEXTURE_LIT = "texture_lit.png"  # the texture before the capture light was divided out (scene stage, --delight)
 OVERVIEW = "overview.png"
 OBJECTS_DIR = "objects"
 #: What a mesh folder (``rgbd2scene mesh``) holds besides scene.json; copied when a scene reuses one.

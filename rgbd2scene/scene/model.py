@@ -33,6 +33,8 @@ MATERIALS = ("as_captured", "wet_tissue")
 TISSUE_ID = 1
 TISSUE_CLASS = "tissue"
 MAX_ID = 65535
+#: Blender's spot blend of the scope light (the render's cone edge; the de-lighting models the same cone).
+SPOT_BLEND = 0.5
 
 
 @dataclass

@@ -15,7 +15,7 @@ import numpy as np
 from rgbd2scene.capture.camera import load_camera
 from rgbd2scene.errors import UserError
 from rgbd2scene.files.atomic import link_or_copy, read_json_object, write_json
-from rgbd2scene.files.images import read_image
+from rgbd2scene.files.images import read_image, write_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.geometry.raycast import raycaster
@@ -23,6 +23,7 @@ from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.config import ConfigError, SceneConfig, load_scene_config, parse_scene_config
 from rgbd2scene.scene.deformation import KINDS as DEFORMATIONS
+from rgbd2scene.scene.delight import DELIGHT_MODES, DELIGHT_SMOOTH_PX, MAX_GAIN, delight_texture
 from rgbd2scene.scene.materials import TissueDetail
 from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, tissue_object
 from rgbd2scene.scene.objects.assemble import Tissue, add_objects
@@ -93,6 +94,16 @@ class SceneOptions:
                          "normal) or none", choices=DEFORMATIONS)
     instrument: bool = option(False, "add the built-in instrument (shaft, wrist, two jaws) with its default motion "
                               "(unless the scene configuration has one)")
+    delight: str = option("auto", "divide the capture light's shading out of the texture (inverse-square "
+                          "fall-off, incidence angle, spot cone of the scope light at the capture camera), so the "
+                          "render's light does not shade it twice: auto (for stereo endoscope captures, lit by the "
+                          "scope's own light; not for RGB-D captures under room light, nor for the unlit "
+                          "as_captured material), on or off; the texture as it was is kept as texture_lit.png",
+                          choices=DELIGHT_MODES)
+    delight_smooth: float = option(DELIGHT_SMOOTH_PX, "Gaussian sigma (texels) of the shading --delight divides "
+                                   "out: the depth's pixel-scale normal noise stays out of the texture; 0 divides "
+                                   "each texel by its own vertex's shading (exact only at the capture pose)",
+                                   metavar="PX")
     scene_config: str | None = option(None, "scene configuration file (TOML or YAML): instruments, meshes, their "
                                       "motions, tracked frames, deformation", metavar="FILE")
 
@@ -194,13 +205,11 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
                              seed=options.seed, standoff=options.standoff, rc=rc)
         except ValueError as exc:
             raise UserError(f"path: {exc}") from None
-    # centred between the eyes; two outlets sit OUTLET_MARGIN_M outside the lenses
     power = float(options.light_power_w)
     if options.light_for_distance:
         distance = _working_distance(rc if rc is not None else raycaster(vertices, triangles), path)
         power *= max(1.0, distance / LIGHT_REFERENCE_DISTANCE_M) ** 2
-    light = Light(kind=options.light, power_w=power, offset=(rig.baseline / 2, 0.0, 0.0),
-                  outlets=options.light_outlets, outlet_spacing=rig.baseline + 2 * OUTLET_MARGIN_M)
+    light = scope_light(options, rig, power)
     # only the wet-tissue material has the micro-structure: record what is built
     detail = TissueDetail(enabled=options.tissue_detail != "off" and options.material == "wet_tissue",
                           seed=options.seed, bake=options.tissue_detail != "procedural")
@@ -214,6 +223,59 @@ def make_description(vertices: np.ndarray, triangles: np.ndarray, options: Scene
         except ConfigError as exc:
             raise _config_error(config, exc) from None
     return SceneDescription(rig, path, light, [tissue], environment=dict(config.environment))
+
+
+def scope_light(options: SceneOptions, rig: StereoRig, power_w: float) -> Light:
+    """The light at the tip of ``rig``: centred between the eyes; two outlets sit OUTLET_MARGIN_M outside the
+    lenses."""
+    return Light(kind=options.light, power_w=power_w, offset=(rig.baseline / 2, 0.0, 0.0),
+                 outlets=options.light_outlets, outlet_spacing=rig.baseline + 2 * OUTLET_MARGIN_M)
+
+
+def delight_choice(record: dict, options: SceneOptions, textured: bool) -> tuple[bool, str]:
+    """Whether ``--delight`` divides the capture light out of the texture, and why (for scene.json)."""
+    if options.delight == "off":
+        return False, "--delight off"
+    if not textured:
+        return False, "no texture (the mesh has vertex colours only: fused frames, or no UVs)"
+    if options.delight == "on":
+        return True, "--delight on"
+    if options.material == "as_captured":
+        return False, "auto: the as_captured material is unlit, so the capture's shading counts once"
+    if (record.get("capture") or {}).get("stereo") is not None:
+        return True, ("auto: a stereo endoscope capture, lit by the scope's own light at the camera, whose shading "
+                      "the render's light would apply a second time")
+    return False, "auto: an RGB-D capture, lit by the room, not by a light at the camera"
+
+
+def delight_scene_texture(out_dir: Path, mesh, record: dict, options: SceneOptions, textured: bool) -> dict:
+    """Write the de-lit texture (``--delight``) as the scene's texture, the texture before as TEXTURE_LIT;
+    without de-lighting, make sure the texture is the lit one. Returns scene.json's ``delight`` section."""
+    applied, reason = delight_choice(record, options, textured)
+    section = {"mode": options.delight, "applied": applied, "reason": reason}
+    if not applied:
+        if (out_dir / folder.TEXTURE_LIT).is_file():  # a scene folder rebuilt in place: back to the lit texture
+            write_image(out_dir / folder.TEXTURE, mesh.texture)
+            (out_dir / folder.TEXTURE_LIT).unlink()
+        return section
+    rig, T_world_cam = capture_camera(record, options)
+    light = scope_light(options, rig, 1.0)
+    if options.delight_smooth < 0:
+        raise UserError(f"--delight-smooth: {options.delight_smooth} texels is negative")
+    albedo, stats = delight_texture(mesh.texture, mesh.vertices, mesh.triangles, mesh.uvs, light, T_world_cam,
+                                    smooth_px=options.delight_smooth)
+    write_image(out_dir / folder.TEXTURE_LIT, mesh.texture)
+    write_image(out_dir / folder.TEXTURE, albedo)  # atomic: a texture hard-linked from a mesh folder stays
+    section.update({
+        "method": "albedo = texture / (shading of the scope light at the capture camera), in linear light, per "
+                  "texel: shading = sum over outlets of spot cone * cos(incidence) / r^2 (the render's light "
+                  "model, the mesh's angle-weighted vertex normals), smoothed over smooth_px texels (Gaussian sigma)",
+        "light": {k: v for k, v in light.to_dict().items() if k != "power_w"}, "T_world_cam": T_world_cam.tolist(),
+        "level": "the median texel the light reaches keeps its value (rendering at the capture pose gives the "
+                 "capture back up to the exposure, where the gain was not clamped)",
+        "max_gain": MAX_GAIN, "smooth_px": options.delight_smooth, "stats": stats, "texture": folder.TEXTURE,
+        "texture_lit": folder.TEXTURE_LIT})
+    return section
 
 
 def _working_distance(rc, path: CameraPath) -> float:
@@ -247,10 +309,13 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
     rc = raycaster(mesh.vertices, mesh.triangles)
     texture = folder.TEXTURE if (out_dir / folder.TEXTURE).is_file() and mesh.uvs is not None else None
     capture = capture_camera(record, options) if options.path == CAPTURE_PATH else None
+    t0_delight = time.perf_counter()
+    delight = delight_scene_texture(out_dir, mesh, record, options, texture is not None and mesh.texture is not None)
+    t_delight = time.perf_counter() - t0_delight
     desc = make_description(mesh.vertices, mesh.triangles, options, rc=rc, texture=texture, config=config,
                             capture=capture)
     coverage = path_coverage(mesh.vertices, mesh.triangles, desc.rig, desc.path, scale=0.5, rc=rc)
-    timings = {"path_s": time.perf_counter() - t0}
+    timings = {"path_s": time.perf_counter() - t0 - t_delight, "delight_s": t_delight}
     objects_record = None
     if config is not None:
         t0 = time.perf_counter()
@@ -270,6 +335,9 @@ def build_scene_folder(out_dir: Path, mesh, record: dict, options: SceneOptions,
     record = dict(record)
     record["scene"] = desc.to_dict()
     record["scene_options"] = to_record(options)
+    record["delight"] = delight
+    if delight["applied"]:
+        record["files"] = {**record.get("files", {}), "texture_lit": folder.TEXTURE_LIT}
     record["coverage"] = {"min": float(coverage.min()), "mean": float(coverage.mean()),
                           "per_frame_left_right": coverage.round(4).tolist(), "check_scale": 0.5}
     if objects_record is not None:
@@ -296,7 +364,8 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
     # from here on out_dir is a scene being built: it must not look complete until scene.json is rewritten
     (out_dir / folder.SCENE_JSON).unlink(missing_ok=True)
     mesh = read_ply(src / folder.MESH)
-    texture_path = src / folder.TEXTURE
+    lit = src / folder.TEXTURE_LIT  # a scene folder whose texture was de-lit: start from the lit texture
+    texture_path = lit if lit.is_file() else src / folder.TEXTURE
     if texture_path.is_file():
         mesh.texture = read_image(texture_path)
         if mesh.texture is None:
@@ -305,5 +374,10 @@ def load_mesh_folder(mesh_dir: str | Path, out_dir: Path):
         for name in folder.MESH_FOLDER_FILES:
             if (src / name).is_file():
                 link_or_copy(src / name, out_dir / name)
+        if lit.is_file():
+            link_or_copy(lit, out_dir / folder.TEXTURE)
     record.pop("scene", None)
+    record.pop("delight", None)
+    if isinstance(record.get("files"), dict):
+        record["files"].pop("texture_lit", None)
     return mesh, record
