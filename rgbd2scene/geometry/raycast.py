@@ -369,6 +369,95 @@ def triangles_in_view(vertices: np.ndarray, triangles: np.ndarray, views, margin
     return np.flatnonzero(keep)
 
 
+#: Triangles per block of :class:`TriangleBlocks` (measured on the bundled 609k-triangle grid mesh: 128 builds
+#: in 14 ms, 64 in 25 ms; a block's box is then about 0.2 x 0.005 x 0.02 of the mesh's 1 m x 0.65 m).
+BLOCK = 128
+#: Rounding allowance of a block's frustum test, relative to the size of the coordinates: the corner codes of
+#: :func:`triangles_in_view` are computed with errors of a few 1e-16 of it, a block decides only beyond 1e-9.
+_BLOCK_TOL = 1e-9
+
+
+def _frustum_planes(camera: Camera, margin_px: float) -> np.ndarray:
+    """(5, 3) camera-frame plane normals n_j of :func:`triangles_in_view`'s five codes, signed so that a
+    point q is outside plane j (its code bit j set) exactly when n_j . q < 0 (z: when z <= 0)."""
+    x0, x1, y0, y1 = camera.normalised_bounds(margin_px)
+    return np.array([[0.0, 0.0, 1.0], [1.0, 0.0, -x0], [-1.0, 0.0, x1], [0.0, 1.0, -y0], [0.0, -1.0, y1]])
+
+
+class TriangleBlocks:
+    """A mesh's triangles in blocks of :data:`BLOCK` consecutive indices, each with a box holding its corners:
+    :func:`triangles_in_view` of a large mesh seen in small part, the same indices, for a fraction of the cost.
+
+    A block whose box lies beyond one frustum plane of every camera (by more than the rounding of the corner
+    test) is left out whole, one whose box lies inside every plane of a camera is kept whole; only the
+    triangles of blocks the frustum's border crosses get :func:`triangles_in_view`'s corner test itself. A mesh
+    in spatially coherent order (a capture's grid mesh: rows of pixels) makes small boxes; any order gives
+    the same indices.
+
+    Parameters
+    ----------
+    vertices : (N, 3) the mesh's vertices in its own frame (a part's rest frame).
+    triangles : (M, 3) indices.
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, size: int = BLOCK):
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        self.count, self.size = len(tri), int(size)
+        pad = (-len(tri)) % self.size
+        if pad and len(tri):  # the last block repeats its last triangle: the same box
+            tri = np.concatenate([tri, np.repeat(tri[-1:], pad, axis=0)])
+        corners = tri.reshape(-1, self.size * 3)
+        lo, hi = np.empty((len(corners), 3)), np.empty((len(corners), 3))
+        for k in range(3):  # per coordinate: a gather and a row reduction of contiguous arrays
+            c = np.ascontiguousarray(v[:, k]).take(corners)
+            lo[:, k], hi[:, k] = c.min(axis=1), c.max(axis=1)
+        self.centre, self.half = (lo + hi) / 2, (hi - lo) / 2
+        self.reach = float(np.abs(self.centre).max(initial=0.0) + self.half.max(initial=0.0))
+
+    def in_view(self, vertices: np.ndarray, triangles: np.ndarray, views, pose: np.ndarray | None = None,
+                grow: float = 0.0, margin_px: float = 1.0) -> np.ndarray:
+        """:func:`triangles_in_view` ``(vertices, triangles, views, margin_px)``: the same indices.
+
+        ``vertices``: the mesh's world-frame vertices now, ``pose`` (4, 4) (default identity) times its own
+        vertices moved by at most ``grow`` (a deformation's largest displacement; 0: rigid).
+        """
+        tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        P = np.eye(4) if pose is None else np.asarray(pose, dtype=np.float64)
+        blocks = len(self.centre)
+        if not blocks:
+            return np.zeros(0, np.int64)
+        dropped, whole = np.ones(blocks, bool), np.zeros(blocks, bool)
+        for camera, T in views:
+            T = np.asarray(T, dtype=np.float64)
+            A = T[:3, :3].T @ P[:3, :3]  # block frame -> camera frame: q = A p + b
+            b = T[:3, :3].T @ (P[:3, 3] - T[:3, 3])
+            planes = _frustum_planes(camera, margin_px)
+            G, h = planes @ A, planes @ b
+            mid = self.centre @ G.T + h
+            rad = (self.half + grow) @ np.abs(G).T
+            tol = _BLOCK_TOL * np.abs(planes).sum(axis=1).max() * (self.reach + grow + np.abs(P[:3, 3]).max()
+                                                                   + np.abs(T[:3, 3]).max() + 1.0)
+            dropped &= (mid + rad < -tol).any(axis=1)
+            whole |= (mid - rad > tol).all(axis=1)
+        step = np.arange(self.size)
+        kept = (np.flatnonzero(whole & ~dropped)[:, None] * self.size + step).ravel()
+        border = (np.flatnonzero(~whole & ~dropped)[:, None] * self.size + step).ravel()
+        border = border[border < self.count]
+        if len(border):
+            corners = tri[border]
+            used = np.zeros(len(vertices), bool)
+            used[corners] = True
+            used = np.flatnonzero(used)
+            local = np.empty(len(vertices), np.int64)
+            local[used] = np.arange(len(used))
+            # the corner test on these triangles' vertices alone: elementwise, the same codes as on all of them
+            seen = triangles_in_view(np.asarray(vertices)[used], local[corners], views, margin_px)
+            kept = np.concatenate([kept, border[seen]])
+        kept = np.sort(kept[kept < self.count])
+        return kept
+
+
 def raycaster(vertices: np.ndarray, triangles: np.ndarray) -> Raycaster:
     """Wrap a triangle mesh (vertices (N, 3) metres, triangles (M, 3) indices) for ray casting."""
     return Raycaster(vertices, triangles)

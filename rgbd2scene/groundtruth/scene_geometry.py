@@ -21,7 +21,7 @@ import numpy as np
 from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.geometry.mesh import vertex_normals
-from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
+from rgbd2scene.geometry.raycast import Raycaster, TriangleBlocks
 from rgbd2scene.groundtruth.geometry_cache import mesh_arrays
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
@@ -38,6 +38,8 @@ class _PartMesh:
     triangles: np.ndarray
     normals: np.ndarray | None  # rest normals, for deforming parts
     basis: np.ndarray | None  # the deformation's basis fields B_k (K, N) at the rest vertices
+    blocks: TriangleBlocks | None = None  # made on first use (see SceneGeometry.in_view)
+    reach: tuple[float, np.ndarray] | None = None  # max |n|, max |B_k| (K,): see SceneGeometry._largest_displacement
 
 
 class SceneGeometry:
@@ -113,18 +115,45 @@ class SceneGeometry:
         """Indices (into :attr:`triangles`) of the triangles that ``frame``'s two eyes may see
         (:func:`~rgbd2scene.geometry.raycast.triangles_in_view`), computed once per frame and view.
 
+        Each part's triangles are tested block by block in its rest frame
+        (:class:`~rgbd2scene.geometry.raycast.TriangleBlocks`: the same indices, a few ms instead of 15-20 for
+        the bundled sample's 609k triangles), moved by the part's pose and grown by its deformation's largest
+        displacement at that frame.
+
         ``cameras``: the (left, right) cameras, or one camera looked through at both eyes' poses."""
         pair = tuple(cameras) if isinstance(cameras, tuple | list) else (cameras, cameras)
         key = (int(frame), pair)
         with self._lock:
             out = self._in_view.get(key)
             if out is None:
-                out = triangles_in_view(self.vertices(frame), self.triangles,
-                                        list(zip(pair, self._eye_poses(frame), strict=True)))
+                views = list(zip(pair, self._eye_poses(frame), strict=True))
+                vertices = self.vertices(frame)
+                out = np.concatenate([
+                    self._triangle_offsets[i] + self._blocks(m).in_view(
+                        vertices[self._offsets[i]:self._offsets[i + 1]], m.triangles, views,
+                        m.part.pose_at(frame), self._largest_displacement(m, frame))
+                    for i, m in enumerate(self.meshes)])
                 self._in_view[key] = out
                 while len(self._in_view) > self._cache_size:
                     self._in_view.popitem(last=False)
             return out
+
+    @staticmethod
+    def _blocks(m: _PartMesh) -> TriangleBlocks:
+        if m.blocks is None:
+            m.blocks = TriangleBlocks(m.vertices, m.triangles)
+        return m.blocks
+
+    def _largest_displacement(self, m: _PartMesh, frame: int) -> float:
+        """A bound on how far ``m``'s deformation moves any vertex at ``frame`` (0 for a rigid part):
+        |n_i (c . B_i)| <= max |n| * sum_k |c_k| max_i |B_k,i|."""
+        if m.part.deformation is None:
+            return 0.0
+        if m.reach is None:
+            m.reach = (float(np.linalg.norm(m.normals, axis=1).max(initial=0.0)),
+                       np.abs(m.basis).max(axis=1, initial=0.0))
+        c = m.part.deformation.coefficients(self.description.time(frame))
+        return m.reach[0] * float(np.abs(c) @ m.reach[1]) * (1 + 1e-9)
 
     def raycaster(self, frame: int, camera: Camera | None = None, T_world_cam: np.ndarray | None = None) -> Raycaster:
         """The scene at ``frame`` ready for ray casting from ``camera`` at ``T_world_cam``.
