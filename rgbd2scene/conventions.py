@@ -84,14 +84,21 @@ def rotate(R: np.ndarray, vectors: np.ndarray, offset: np.ndarray | None = None)
     """``vectors @ R.T (+ offset)`` for vectors (..., 3), float64.
 
     Written out per component: numpy's matmul with an inner dimension of 3 is 3-4 times slower on
-    images and meshes (and spends more CPU than it takes wall time).
+    images and meshes (and spends more CPU than it takes wall time). Each row is summed in place in the output
+    (``v0 R_i0 + v1 R_i1 + v2 R_i2 (+ offset_i)``, in this order: the same bits as the plain expression) with one
+    scratch buffer: a new array per operation costs as much again (4.4 vs 1.1 ms on a 512x256 image).
     """
     v = np.asarray(vectors, dtype=np.float64)
     R = np.asarray(R, dtype=np.float64)
     out = np.empty(v.shape, dtype=np.float64)
+    term = np.empty(v.shape[:-1], dtype=np.float64)
     for i in range(3):
-        row = v[..., 0] * R[i, 0] + v[..., 1] * R[i, 1] + v[..., 2] * R[i, 2]
-        out[..., i] = row if offset is None else row + offset[i]
+        row = out[..., i]
+        np.multiply(v[..., 0], R[i, 0], out=row)
+        row += np.multiply(v[..., 1], R[i, 1], out=term)
+        row += np.multiply(v[..., 2], R[i, 2], out=term)
+        if offset is not None:
+            row += offset[i]
     return out
 
 

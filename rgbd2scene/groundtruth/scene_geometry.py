@@ -71,7 +71,8 @@ class SceneGeometry:
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
-        self._static_normals: np.ndarray | None = None
+        self._static_normals: np.ndarray | None = None  # a static scene's (see _normals)
+        self._known: np.ndarray | None = None  # which of them are computed, when only some are
         self._corner_order: tuple[np.ndarray, np.ndarray] | None = None  # see _triangles_around
         self._lock = threading.RLock()  # the render worker asks from two threads
 
@@ -187,19 +188,43 @@ class SceneGeometry:
         For a cast against ``subset``: those of the vertices of its triangles (zero elsewhere), computed on the
         triangles around them only (every triangle sharing a vertex with one, in the mesh's order, so each
         vertex's sum has the same terms in the same order as over the whole mesh: the same bits), a few
-        thousand triangles instead of the whole mesh. For the whole scene: a static scene's, once; None for a
-        moving one (the caster computes them).
+        thousand triangles instead of the whole mesh. A static scene's are kept from frame to frame (each vertex's
+        normal is computed the first time a frame needs it). For the whole scene: a static scene's, once; None
+        for a moving one (the caster computes them).
         """
         vertices = self.vertices(frame)
         if subset is None:
-            if self.static and self._static_normals is None:
-                self._static_normals = vertex_normals(vertices, self.triangles, "angle")
+            if self.static and (self._static_normals is None or self._known is not None):
+                self._static_normals, self._known = vertex_normals(vertices, self.triangles, "angle"), None
             return self._static_normals if self.static else None
+        if self.static:
+            return self._static_normals_of(vertices, subset)
         around = self.triangles[self._triangles_around(subset)]
         used, corners = np.unique(around, return_inverse=True)
         out = np.zeros((len(vertices), 3))
         out[used] = vertex_normals(vertices[used], corners.reshape(-1, 3), "angle")
         return out
+
+    def _static_normals_of(self, vertices: np.ndarray, subset: np.ndarray) -> np.ndarray:
+        """A static scene's vertex normals, right at least at the vertices of ``subset``'s triangles: those not
+        known yet are computed (from the triangles around them, as :meth:`_normals`) into the array kept for
+        every frame; the others are left as they are (casters of earlier frames read them)."""
+        if self._static_normals is not None and self._known is None:
+            return self._static_normals  # all of them, made for a cast against the whole scene
+        if self._static_normals is None:
+            self._static_normals = np.zeros((len(vertices), 3))
+            self._known = np.zeros(len(vertices), bool)
+        corners = self.triangles[subset]
+        unknown = ~self._known[corners]
+        if unknown.any():
+            touching = subset[unknown.any(axis=1)]
+            around = self.triangles[self._triangles_around(touching)]
+            used, local = np.unique(around, return_inverse=True)
+            normals = vertex_normals(vertices[used], local.reshape(-1, 3), "angle")
+            new = np.unique(corners[unknown])  # each with all its triangles in ``around``: exact
+            self._static_normals[new] = normals[np.searchsorted(used, new)]
+            self._known[new] = True
+        return self._static_normals
 
     def _triangles_around(self, subset: np.ndarray) -> np.ndarray:
         """Indices of every triangle sharing a vertex with one of ``subset``, ascending (from each vertex's
@@ -241,7 +266,7 @@ class SceneGeometry:
         rc = self.raycaster(frame, camera, T_world_cam)
         hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True, face_normals=face_normals)
         tri = hit["triangle_ids"]
-        hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids[np.maximum(tri, 0)], 0).astype(np.uint16)
+        hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids.take(np.maximum(tri, 0)), 0).astype(np.uint16)
         return hit
 
     def moved_points(self, triangle_ids: np.ndarray, uvs: np.ndarray, frame: int) -> np.ndarray:
@@ -254,7 +279,7 @@ class SceneGeometry:
         that frame, NaN where ``triangle_ids`` < 0: :meth:`moved_points` for several frames, the corner
         indices and weights gathered once."""
         tri = np.asarray(triangle_ids)
-        corners = self.triangles[np.maximum(tri, 0)]  # (..., 3) vertex indices
+        corners = self.triangles.take(np.maximum(tri, 0), axis=0)  # (..., 3) vertex indices
         u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
         weights = (1.0 - u - v, u, v)
 
