@@ -108,7 +108,7 @@ def _recast_vertex_misses(rc: Raycaster, hit: dict, origin: np.ndarray, directio
     a silhouette farther than the largest nudge (5e-6 of its length: 0.25 um at 5 cm) stays a miss.
     """
     t = hit["t"]
-    if t.ndim != 2 or t.size == 0:
+    if t.ndim != 2 or t.size == 0 or np.isfinite(t).all():  # the usual view: every ray hit
         return hit
     finite = np.isfinite(directions)
     tried = ~(finite[..., 0] & finite[..., 1] & finite[..., 2])  # not .all(axis=-1): slow over 3 elements
@@ -161,12 +161,59 @@ def _facing(smooth_cam: np.ndarray, rays_cam: np.ndarray, face_world: np.ndarray
     ``n . ray`` is not zero. Only where it is zero (or NaN) does the triangle's side decide, and only there are
     the face normals turned into the camera frame (the whole image's cost 7 ms per 512x256 eye)."""
     dot = _dot(smooth_cam, rays_cam)
-    out = np.where(dot[..., None] > 0, -smooth_cam, smooth_cam)
-    undecided = ~(dot != 0)
+    out = np.negative(smooth_cam, out=smooth_cam.copy(), where=(dot > 0)[..., None])
+    undecided = ~(dot != 0)  # never turned above
     if undecided.any():
         side = _side(rotate(R.T, face_world[undecided]), rays_cam[undecided])
-        out[undecided] = smooth_cam[undecided] * side
+        out[undecided] *= side
     return out
+
+
+def _interpolate(corners: np.ndarray, table: np.ndarray, ids: np.ndarray, uvs: np.ndarray, normals: bool = True,
+                 points: bool = False):
+    """Per-vertex values interpolated at hits: the normalised smooth normal (``normals``: the table's first
+    three rows, NaN on a miss) and / or the point (``points``: its last three; NaN on a miss), each (..., 3).
+
+    ``corners`` (3, M): the table columns of each triangle's three corners; ``table`` (3 or 6, N'): the values,
+    a row per component; ``ids`` (...): the hit triangles (-1: miss); ``uvs`` (..., 2) their barycentric
+    coordinates. Returns (normals or None, points or None).
+
+    (1 - u - v) a0 + u a1 + v a2, summed in this order (the points from 0, as ``sum`` did: -0.0 becomes 0.0);
+    the normals then divided by their length (np.linalg.norm's sqrt of the summed squares). Component by
+    component: every operation runs over whole contiguous images (an (H, W, 3) layout, with (H, W, 1) weights,
+    runs numpy's inner loops over 3 elements at a time, 2-3 times slower).
+    """
+    ids = np.asarray(ids)
+    hit = ids >= 0
+    every = bool(hit.all())  # the usual case: no copies of the hits
+    width = 3 * (normals + points)
+    if every or hit.any():
+        which = ids if every else ids[hit]
+        uv = uvs if every else uvs[hit]
+        weights = (None, uv[..., 0], uv[..., 1])
+        a, term = np.empty((width,) + which.shape), np.empty((width,) + which.shape)
+        for k in range(3):
+            # mode="clip": indices from ``corners`` are in range, and "raise" buffers an ``out``
+            table.take(corners[k].take(which), axis=1, out=term if k else a, mode="clip")
+            if k == 0:
+                a *= 1.0 - weights[1] - weights[2]
+                if points:
+                    a[-3:] += 0
+            else:
+                term *= weights[k]
+                a += term
+        if normals:
+            n = a[:3]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])  # squares are never -0: norm's bits
+        if not every:
+            out = np.full((width,) + ids.shape, np.nan)
+            out[:, hit] = a
+            a = out
+    else:
+        a = np.full((width,) + ids.shape, np.nan)
+    a = np.moveaxis(a, 0, -1)  # (..., width): components stay contiguous planes
+    return (a[..., :3] if normals else None), (a[..., -3:] if points else None)
 
 
 @lru_cache(maxsize=8)
@@ -200,12 +247,15 @@ class Raycaster:
         cast = self.triangles if self._subset is None else self.triangles[self._subset]
         if cast.size and (cast.min() < 0 or cast.max() >= len(self.vertices)):
             raise ValueError("triangle indices out of range of the vertex array")
-        vertices = self.vertices
+        vertices, self._used = self.vertices, None
         if self._subset is not None and cast.size:
             # only the vertices of those triangles go to Open3D (the same coordinates, so the same acceleration
             # structure and hits), not all of a large mesh's every frame
-            used = np.unique(cast)
-            vertices, cast = vertices[used], np.searchsorted(used, cast)
+            self._used = np.unique(cast)
+            vertices, cast = vertices[self._used], np.searchsorted(self._used, cast)
+        # the corners of the triangles cast against, as indices into _used (all vertices when None)
+        self._corners = np.ascontiguousarray(cast.T)  # (3, M): a contiguous row per corner
+        self._tables: dict[tuple[bool, bool], np.ndarray] = {}
         # the hit's triangle id in the whole mesh, by the id Open3D reports (a miss: the last entry, -1)
         self._ids = None if self._subset is None else np.append(self._subset, -1)
         self._o3d = o3d
@@ -230,29 +280,29 @@ class Raycaster:
         """First hits of rays (..., 3) in world coordinates.
 
         Returns ``t`` (float64, units of each direction's length, NaN on a miss), ``triangle_ids``
-        (int64, -1 on a miss), ``uvs`` (barycentric (u, v): point = (1-u-v) p0 + u p1 + v p2) and
-        ``face_normals`` (unit, triangle winding; NaN on a miss).
+        (int64, -1 on a miss), ``uvs`` (barycentric (u, v): point = (1-u-v) p0 + u p1 + v p2),
+        ``face_normals`` (unit, triangle winding; NaN on a miss) and ``local_ids`` (int64: the hit triangle's
+        place among those this caster casts against, ``subset``'s order; -1 on a miss).
         """
         rays = _rays(origins, directions)
         shape = rays.shape[:-1]
         if rays.size == 0 or self._empty:
             return {"t": np.full(shape, np.nan), "triangle_ids": np.full(shape, -1, np.int64),
-                    "uvs": np.full(shape + (2,), np.nan), "face_normals": np.full(shape + (3,), np.nan)}
+                    "uvs": np.full(shape + (2,), np.nan), "face_normals": np.full(shape + (3,), np.nan),
+                    "local_ids": np.full(shape, -1, np.int64)}
         out = self._scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays.reshape(-1, 6))),
                                     nthreads=self._threads)
         t = out["t_hit"].numpy().astype(np.float64).reshape(shape)
         prim = out["primitive_ids"].numpy().reshape(shape)
         hit = (prim != _INVALID) & np.isfinite(t)
         t[~hit] = np.nan
-        if self._ids is None:
-            ids = np.where(hit, prim.astype(np.int64), -1)
-        else:
-            ids = self._ids.take(np.where(hit, prim, len(self._subset)))
+        local = np.where(hit, prim.astype(np.int64), -1)
+        ids = local.copy() if self._ids is None else self._ids.take(local)  # -1: the last entry, -1
         uvs = out["primitive_uvs"].numpy().astype(np.float64).reshape(shape + (2,))
         uvs[~hit] = np.nan
         fn = out["primitive_normals"].numpy().astype(np.float64).reshape(shape + (3,))
         fn[~hit] = np.nan
-        return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn}
+        return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn, "local_ids": local}
 
     def blocked(self, origins: np.ndarray, directions: np.ndarray, t_max: float) -> np.ndarray:
         """Bool (...): a surface lies on each ray (..., 3) before ``t_max`` (units of the direction's
@@ -270,36 +320,23 @@ class Raycaster:
 
         This is the normal a smooth-shaded mesh shows (Blender/Cycles); NaN where ``triangle_ids`` < 0.
         """
-        ids = np.asarray(triangle_ids)
-        hit = ids >= 0
-        every = bool(hit.all())  # the usual case: no copies of the hits
-        if not every and not hit.any():
-            return np.full(ids.shape + (3,), np.nan)
-        tri = self.triangles.take(ids if every else ids[hit], axis=0)  # take: a third of [ ]'s time
-        uv = uvs if every else uvs[hit]
-        u, v = uv[..., 0:1], uv[..., 1:2]
-        vn = self.vertex_normals
-        # (1 - u - v) n0 + u n1 + v n2, summed in this order, then divided by its length (np.linalg.norm's
-        # sqrt of the summed squares): written into two buffers instead of a new array per operation, the
-        # same bits in half the time
-        n = vn.take(tri[..., 0], axis=0)
-        n *= 1.0 - u - v
-        term = vn.take(tri[..., 1], axis=0)
-        term *= u
-        n += term
-        vn.take(tri[..., 2], axis=0, out=term)
-        term *= v
-        n += term
-        with np.errstate(invalid="ignore", divide="ignore"):
-            n /= np.sqrt(_dot(n, n))[..., None]  # np.linalg.norm's bits: squares are never -0
-        if every:
-            return n
-        out = np.full(ids.shape + (3,), np.nan)
-        out[hit] = n
-        return out
+        return _interpolate(self.triangles.T, self.vertex_normals.T, triangle_ids, uvs)[0]
+
+    def _table(self, normals: bool, points: bool) -> np.ndarray:
+        """Per vertex of the triangles cast against (:attr:`_corners`' indices): its vertex normal and / or its
+        position, a row per component (3 or 6, N'): one gather per corner gives both, from a table of a few
+        thousand vertices for a culled caster (in cache) instead of the whole mesh's."""
+        table = self._tables.get((normals, points))
+        if table is None:
+            columns = ([self.vertex_normals] if normals else []) + ([self.vertices] if points else [])
+            if self._used is not None:
+                columns = [c.take(self._used, axis=0) for c in columns]
+            table = np.ascontiguousarray(np.concatenate(columns, axis=1).T)
+            self._tables[(normals, points)] = table
+        return table
 
     def cast(self, camera: Camera, T_world_cam: np.ndarray, normals: str = "face",
-             with_uvs: bool = False, face_normals: bool = True) -> dict[str, np.ndarray]:
+             with_uvs: bool = False, face_normals: bool = True, points: bool = False) -> dict[str, np.ndarray]:
         """Render the mesh from ``camera`` along the ray of each pixel centre (:meth:`Camera.rays`).
 
         Parameters
@@ -309,6 +346,9 @@ class Raycaster:
         normals : ``"face"`` (geometric triangle normals), ``"smooth"`` (interpolated angle-weighted
             vertex normals, what a smooth-shaded render shows) or ``"none"``.
         face_normals : with ``"smooth"``, whether to return the face normals too (``face_normals_cam``).
+        points : whether to return the hit points, world frame, as the triangle's corners weighted by the
+            barycentric coordinates (``(0 + (1-u-v) p0) + u p1 + v p2``: the bits of
+            :meth:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry.follow` at this mesh's vertices).
 
         Returns
         -------
@@ -329,12 +369,19 @@ class Raycaster:
             hit["triangle_ids"][~has_ray] = -1
             hit["uvs"][~has_ray] = np.nan
             hit["face_normals"][~has_ray] = np.nan
+            hit["local_ids"][~has_ray] = -1
         result = {"depth": hit["t"].astype(np.float32), "triangle_ids": hit["triangle_ids"]}
+        smooth = points_world = None
+        if normals == "smooth" or points:
+            smooth, points_world = _interpolate(self._corners, self._table(normals == "smooth", points),
+                                                hit["local_ids"], hit["uvs"], normals == "smooth", points)
+        if points:
+            result["points"] = points_world
         if normals == "face":
             face_cam = rotate(R.T, hit["face_normals"])  # world -> camera: R^T n
             result["normals_cam"] = (face_cam * _side(face_cam, rays_cam)).astype(np.float32)
         elif normals == "smooth":
-            smooth = rotate(R.T, self.smooth_normals(hit["triangle_ids"], hit["uvs"]))
+            smooth = rotate(R.T, smooth)
             result["normals_cam"] = _facing(smooth, rays_cam, hit["face_normals"], R).astype(np.float32)
             if face_normals:
                 face_cam = rotate(R.T, hit["face_normals"])

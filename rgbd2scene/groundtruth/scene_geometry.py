@@ -260,11 +260,12 @@ class SceneGeometry:
         return np.flatnonzero(keep)
 
     def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray,
-             normals: str = "smooth", face_normals: bool = True) -> dict[str, np.ndarray]:
-        """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``) plus ``instance_ids``
-        (H, W) uint16 (0 on a miss)."""
+             normals: str = "smooth", face_normals: bool = True, points: bool = False) -> dict[str, np.ndarray]:
+        """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``; with ``points``, the hit
+        points: :meth:`follow`'s at ``frame``, the same bits) plus ``instance_ids`` (H, W) uint16 (0 on a miss)."""
         rc = self.raycaster(frame, camera, T_world_cam)
-        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True, face_normals=face_normals)
+        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True, face_normals=face_normals,
+                      points=points)
         tri = hit["triangle_ids"]
         hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids.take(np.maximum(tri, 0)), 0).astype(np.uint16)
         return hit
@@ -274,20 +275,32 @@ class SceneGeometry:
         :meth:`cast` reports them at any frame); NaN where ``triangle_ids`` < 0."""
         return self.follow(triangle_ids, uvs)(frame)
 
-    def follow(self, triangle_ids: np.ndarray, uvs: np.ndarray):
+    def follow(self, triangle_ids: np.ndarray, uvs: np.ndarray, seen: tuple[int, np.ndarray] | None = None):
         """``frame -> (..., 3)`` world positions of the surface points (triangle, barycentric (u, v)) at
         that frame, NaN where ``triangle_ids`` < 0: :meth:`moved_points` for several frames, the corner
-        indices and weights gathered once."""
-        tri = np.asarray(triangle_ids)
-        corners = self.triangles.take(np.maximum(tri, 0), axis=0)  # (..., 3) vertex indices
-        u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
-        weights = (1.0 - u - v, u, v)
+        indices and weights gathered once (when first needed).
 
-        followed: dict[int, np.ndarray] = {}  # by vertex key: a static scene's points are the same every frame
+        ``seen``: (frame, the points at that frame) when known already (:meth:`cast`'s ``points``): a static
+        scene's points at every frame."""
+        tri = np.asarray(triangle_ids)
+        gathered: list = []
+
+        def corners_and_weights():
+            if not gathered:
+                u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
+                gathered.extend([self.triangles.take(np.maximum(tri, 0), axis=0), (1.0 - u - v, u, v)])
+            return gathered
+
+        # by vertex key: a static scene's points are the same every frame
+        followed: dict[int, np.ndarray] = {}
+        if seen is not None:
+            seen[1].flags.writeable = False  # shared by the callers
+            followed[self._frame_key(seen[0])] = seen[1]
 
         def at(frame: int) -> np.ndarray:
             key = self._frame_key(frame)
             if key not in followed:
+                corners, weights = corners_and_weights()
                 vertices = self.vertices(frame)
                 # 0 + w0 p0 + w1 p1 + w2 p2 in this order, as sum() added them (its 0 turns -0.0 into 0.0: the
                 # same bits), in two buffers
@@ -324,7 +337,7 @@ class SceneGeometry:
 
 
 def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, camera: Camera,
-                   hit: dict | None = None) -> dict[str, np.ndarray]:
+                   hit: dict | None = None, moved_to=None) -> dict[str, np.ndarray]:
     """``occluded_forward`` / ``occluded_backward`` (H, W) bool of one eye (seen through ``camera``) at ``frame``
     (CONVENTIONS §3).
 
@@ -338,7 +351,8 @@ def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, c
     if hit is None:
         hit = geometry.cast(frame, camera, description.camera_pose(frame, eye), normals="none")
     surface = hit["triangle_ids"] >= 0
-    moved_to = geometry.follow(hit["triangle_ids"], hit["uvs"])
+    if moved_to is None:  # else: ``geometry.follow`` of that hit, already made (the flow's)
+        moved_to = geometry.follow(hit["triangle_ids"], hit["uvs"])
     out = {}
     for key, other in (("occluded_forward", frame + 1), ("occluded_backward", frame - 1)):
         if not 0 <= other < frames:
