@@ -106,7 +106,7 @@ class ModelGroundTruth:
                     out[key] = np.full(depth.shape + (2,), np.nan, np.float32)
                     continue
                 T_other = self.description.camera_pose(other, eye)
-                flow = _pixel_offsets(camera, transform_points(invert_pose(T_other), follow(other)))
+                flow = _pixel_offsets(camera, transform_points(invert_pose(T_other), follow(other), planar=True))
                 flow[~surface] = np.nan
                 out[key] = flow
         if "segmentation" in maps:
@@ -129,7 +129,7 @@ class ModelGroundTruth:
         other = "right" if eye == "left" else "left"
         camera = rig.camera(other)
         T_other = self.description.camera_pose(index, other)
-        out = _pixel_offsets(camera, transform_points(invert_pose(T_other), points))
+        out = _pixel_offsets(camera, transform_points(invert_pose(T_other), points, planar=True))
         hidden = geometry.hidden(points, camera, T_other, index)
         out[hidden | (hit["triangle_ids"] < 0)] = np.nan
         return out

@@ -325,7 +325,7 @@ class SceneGeometry:
         valid = np.all(np.isfinite(p), axis=-1)
         if not valid.any():
             return valid
-        u, v = camera.project(transform_points(invert_pose(T_world_cam), p))
+        u, v = camera.project(transform_points(invert_pose(T_world_cam), p, planar=True))
         inside = camera.in_image(u, v)
         centre = np.asarray(T_world_cam, dtype=np.float64)[:3, 3]
         # only points that project into the image are cast at: the segment to such a point lies in the
