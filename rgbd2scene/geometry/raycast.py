@@ -165,7 +165,7 @@ def _facing(smooth_cam: np.ndarray, rays_cam: np.ndarray, face_world: np.ndarray
     ``n . ray`` is not zero. Only where it is zero (or NaN) does the triangle's side decide, and only there are
     the face normals turned into the camera frame (the whole image's cost 7 ms per 512x256 eye)."""
     dot = _dot(smooth_cam, rays_cam)
-    out = np.negative(smooth_cam, out=smooth_cam.copy(), where=(dot > 0)[..., None])
+    out = np.negative(smooth_cam, out=smooth_cam.copy(order="K"), where=(dot > 0)[..., None])
     undecided = ~(dot != 0)  # never turned above
     if undecided.any():
         side = _side(rotate(R.T, face_world[undecided]), rays_cam[undecided])
@@ -299,13 +299,13 @@ class Raycaster:
         t = out["t_hit"].numpy().astype(np.float64).reshape(shape)
         prim = out["primitive_ids"].numpy().reshape(shape)
         hit = (prim != _INVALID) & np.isfinite(t)
-        t[~hit] = np.nan
         local = np.where(hit, prim.astype(np.int64), -1)
         ids = local.copy() if self._ids is None else self._ids.take(local)  # -1: the last entry, -1
         uvs = out["primitive_uvs"].numpy().astype(np.float64).reshape(shape + (2,))
-        uvs[~hit] = np.nan
         fn = out["primitive_normals"].numpy().astype(np.float64).reshape(shape + (3,))
-        fn[~hit] = np.nan
+        if not hit.all():
+            missed = ~hit
+            t[missed], uvs[missed], fn[missed] = np.nan, np.nan, np.nan
         return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn, "local_ids": local}
 
     def blocked(self, origins: np.ndarray, directions: np.ndarray, t_max: float) -> np.ndarray:
