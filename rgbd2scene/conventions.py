@@ -80,25 +80,37 @@ def project(points_cam: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return u, v
 
 
-def rotate(R: np.ndarray, vectors: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
+def rotate(R: np.ndarray, vectors: np.ndarray, offset: np.ndarray | None = None, planar: bool = False) -> np.ndarray:
     """``vectors @ R.T (+ offset)`` for vectors (..., 3), float64.
 
     Written out per component: numpy's matmul with an inner dimension of 3 is 3-4 times slower on
-    images and meshes (and spends more CPU than it takes wall time).
+    images and meshes (and spends more CPU than it takes wall time). Each row is summed in place in the output
+    (``v0 R_i0 + v1 R_i1 + v2 R_i2 (+ offset_i)``, in this order: the same bits as the plain expression) with one
+    scratch buffer: a new array per operation costs as much again (4.4 vs 1.1 ms on a 512x256 image).
+
+    ``planar``: the result is a (..., 3) view of three contiguous component planes (3, ...), not interleaved:
+    the same values, written (and, given such a view, read) a plane at a time, 2.5 times faster on an image
+    (0.46 vs 1.2 ms at 512x256), for callers that go on a component at a time (the ground truth's images).
     """
     v = np.asarray(vectors, dtype=np.float64)
     R = np.asarray(R, dtype=np.float64)
-    out = np.empty(v.shape, dtype=np.float64)
+    planes = np.empty((3,) + v.shape[:-1], dtype=np.float64) if planar else None
+    out = np.moveaxis(planes, 0, -1) if planar else np.empty(v.shape, dtype=np.float64)
+    term = np.empty(v.shape[:-1], dtype=np.float64)
     for i in range(3):
-        row = v[..., 0] * R[i, 0] + v[..., 1] * R[i, 1] + v[..., 2] * R[i, 2]
-        out[..., i] = row if offset is None else row + offset[i]
+        row = planes[i] if planar else out[..., i]
+        np.multiply(v[..., 0], R[i, 0], out=row)
+        row += np.multiply(v[..., 1], R[i, 1], out=term)
+        row += np.multiply(v[..., 2], R[i, 2], out=term)
+        if offset is not None:
+            row += offset[i]
     return out
 
 
-def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 rigid transform to points of shape (..., 3)."""
+def transform_points(T: np.ndarray, points: np.ndarray, planar: bool = False) -> np.ndarray:
+    """Apply a 4x4 rigid transform to points of shape (..., 3) (``planar``: see :func:`rotate`)."""
     T = np.asarray(T, dtype=np.float64)
-    return rotate(T[:3, :3], points, T[:3, 3])
+    return rotate(T[:3, :3], points, T[:3, 3], planar)
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import pytest
 from rgbd2scene.files.meshio import write_ply
 from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.geometry.mesh import Mesh
-from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
+from rgbd2scene.geometry.raycast import Raycaster, TriangleBlocks, triangles_in_view
 from rgbd2scene.groundtruth.scene_geometry import SceneGeometry
 from rgbd2scene.scene.deformation import Deformation
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
@@ -55,6 +55,32 @@ def test_a_triangle_across_the_view_is_kept_and_one_behind_the_camera_is_not():
     triangles = np.array([[0, 1, 2], [3, 4, 5]])
     kept = triangles_in_view(vertices, triangles, [(Camera(INTR), np.eye(4))])
     np.testing.assert_array_equal(kept, [0])
+
+
+def test_blocks_keep_the_triangles_the_corner_test_keeps():
+    # a moved, shuffled copy of the grid: blocks of scattered triangles, and of coherent ones (the sorted half)
+    rng = np.random.default_rng(3)
+    mesh = _wavy_grid()
+    every = np.arange(len(mesh.triangles))
+    order = np.concatenate([every[::2], rng.permutation(every[1::2])])
+    triangles = mesh.triangles[order]
+    angle = 0.3
+    pose = np.eye(4)
+    pose[:3, :3] = [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    pose[:3, 3] = (0.01, -0.02, 0.005)
+    world = mesh.vertices @ pose[:3, :3].T + pose[:3, 3]
+    blocks = TriangleBlocks(mesh.vertices, triangles, size=16)
+    cameras = (Camera(INTR), Camera(Intrinsics(48, 32, 30.0, 30.0, 23.5, 15.5), (0.3, -0.1, 0.001, 0.002)))
+    for pose_cam in _poses() + [look_at(np.array([0.0, 0.0, 0.3]), np.array([0.0, 0.0, 0.0]))]:
+        for camera in cameras:
+            views = [(camera, pose_cam), (camera, pose_cam @ np.diag([1.0, -1.0, -1.0, 1.0]))]
+            expected = triangles_in_view(world, triangles, views)
+            assert 0 < len(expected) < 0.5 * len(triangles)
+            np.testing.assert_array_equal(blocks.in_view(world, triangles, views, pose), expected)
+            # vertices moved by up to 2 mm (a deformation): blocks grown by as much keep the same triangles
+            moved = world + rng.uniform(-1, 1, world.shape) * 0.002 / np.sqrt(3)
+            np.testing.assert_array_equal(blocks.in_view(moved, triangles, views, pose, grow=0.002),
+                                          triangles_in_view(moved, triangles, views))
 
 
 @pytest.mark.parametrize("breathing", [True, False], ids=["deforming", "static"])

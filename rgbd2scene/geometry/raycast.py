@@ -19,6 +19,7 @@ import importlib.machinery
 import importlib.util
 import os
 import sys
+from functools import lru_cache
 
 import numpy as np
 
@@ -84,8 +85,12 @@ def set_threads(n: int) -> None:
 def _rays(origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """Open3D's ray layout (..., 6) float32: origin (broadcast to the directions) then direction."""
     out = np.empty(np.shape(directions)[:-1] + (6,), np.float32)
-    out[..., :3] = np.asarray(origins, dtype=np.float64)  # rounded to float32 as astype rounds
-    out[..., 3:] = np.asarray(directions, dtype=np.float64)
+    origins, directions = np.asarray(origins, dtype=np.float64), np.asarray(directions, dtype=np.float64)
+    # rounded to float32 as astype rounds; a column at a time (numpy's loops over a last axis of 3 are 6 times
+    # slower on an image's rays)
+    for k in range(3):
+        out[..., k] = origins[..., k]
+        out[..., 3 + k] = directions[..., k]
     return out
 
 
@@ -107,9 +112,10 @@ def _recast_vertex_misses(rc: Raycaster, hit: dict, origin: np.ndarray, directio
     a silhouette farther than the largest nudge (5e-6 of its length: 0.25 um at 5 cm) stays a miss.
     """
     t = hit["t"]
-    if t.ndim != 2 or t.size == 0:
+    if t.ndim != 2 or t.size == 0 or np.isfinite(t).all():  # the usual view: every ray hit
         return hit
-    tried = ~np.isfinite(directions).all(axis=-1)
+    finite = np.isfinite(directions)
+    tried = ~(finite[..., 0] & finite[..., 1] & finite[..., 2])  # not .all(axis=-1): slow over 3 elements
     ways = [(a * R[:, 0] + b * R[:, 1]) / np.hypot(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1) if a or b]
     while True:  # a recovered hit may make its missed neighbour (a mesh corner) a suspect in turn
         missed = ~np.isfinite(hit["t"])
@@ -136,10 +142,18 @@ def _recast_vertex_misses(rc: Raycaster, hit: dict, origin: np.ndarray, directio
             return hit
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...) a . b of vectors (..., 3), added in their order: np.sum's value (it starts from +0, so only the sign
+    of a zero may differ, which no caller looks at) in a third of the time of a reduction over 3 elements."""
+    out = a[..., 0] * b[..., 0]
+    out += a[..., 1] * b[..., 1]
+    out += a[..., 2] * b[..., 2]
+    return out
+
+
 def _side(face_cam: np.ndarray, rays_cam: np.ndarray) -> np.ndarray:
     """(..., 1) -1 or 1: which side of each hit triangle (camera-frame normals ``face_cam``) the camera sees."""
-    face_dot = np.sum(face_cam * rays_cam, axis=-1, keepdims=True)
-    return np.where(face_dot > 0, -1.0, 1.0)
+    return np.where(_dot(face_cam, rays_cam) > 0, -1.0, 1.0)[..., None]
 
 
 def _facing(smooth_cam: np.ndarray, rays_cam: np.ndarray, face_world: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -150,13 +164,71 @@ def _facing(smooth_cam: np.ndarray, rays_cam: np.ndarray, face_world: np.ndarray
     normal times ``side`` is ``side`` times ``n . ray``, and the flip to the camera undoes the side's wherever
     ``n . ray`` is not zero. Only where it is zero (or NaN) does the triangle's side decide, and only there are
     the face normals turned into the camera frame (the whole image's cost 7 ms per 512x256 eye)."""
-    dot = np.sum(smooth_cam * rays_cam, axis=-1, keepdims=True)
-    out = np.where(dot > 0, -smooth_cam, smooth_cam)
-    undecided = ~(dot[..., 0] != 0)
+    dot = _dot(smooth_cam, rays_cam)
+    out = np.negative(smooth_cam, out=smooth_cam.copy(order="K"), where=(dot > 0)[..., None])
+    undecided = ~(dot != 0)  # never turned above
     if undecided.any():
         side = _side(rotate(R.T, face_world[undecided]), rays_cam[undecided])
-        out[undecided] = smooth_cam[undecided] * side
+        out[undecided] *= side
     return out
+
+
+def _interpolate(corners: np.ndarray, table: np.ndarray, ids: np.ndarray, uvs: np.ndarray, normals: bool = True,
+                 points: bool = False):
+    """Per-vertex values interpolated at hits: the normalised smooth normal (``normals``: the table's first
+    three rows, NaN on a miss) and / or the point (``points``: its last three; NaN on a miss), each (..., 3).
+
+    ``corners`` (3, M): the table columns of each triangle's three corners; ``table`` (3 or 6, N'): the values,
+    a row per component; ``ids`` (...): the hit triangles (-1: miss); ``uvs`` (..., 2) their barycentric
+    coordinates. Returns (normals or None, points or None).
+
+    (1 - u - v) a0 + u a1 + v a2, summed in this order (the points from 0, as ``sum`` did: -0.0 becomes 0.0);
+    the normals then divided by their length (np.linalg.norm's sqrt of the summed squares). Component by
+    component: every operation runs over whole contiguous images (an (H, W, 3) layout, with (H, W, 1) weights,
+    runs numpy's inner loops over 3 elements at a time, 2-3 times slower).
+    """
+    ids = np.asarray(ids)
+    hit = ids >= 0
+    every = bool(hit.all())  # the usual case: no copies of the hits
+    width = 3 * (normals + points)
+    if every or hit.any():
+        which = ids if every else ids[hit]
+        uv = uvs if every else uvs[hit]
+        weights = (None, uv[..., 0], uv[..., 1])
+        a, term = np.empty((width,) + which.shape), np.empty((width,) + which.shape)
+        for k in range(3):
+            # mode="clip": indices from ``corners`` are in range, and "raise" buffers an ``out``
+            table.take(corners[k].take(which), axis=1, out=term if k else a, mode="clip")
+            if k == 0:
+                a *= 1.0 - weights[1] - weights[2]
+                if points:
+                    a[-3:] += 0
+            else:
+                term *= weights[k]
+                a += term
+        if normals:
+            n = a[:3]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                n /= np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])  # squares are never -0: norm's bits
+        if not every:
+            out = np.full((width,) + ids.shape, np.nan)
+            out[:, hit] = a
+            a = out
+    else:
+        a = np.full((width,) + ids.shape, np.nan)
+    a = np.moveaxis(a, 0, -1)  # (..., width): components stay contiguous planes
+    return (a[..., :3] if normals else None), (a[..., -3:] if points else None)
+
+
+@lru_cache(maxsize=8)
+def _camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(:meth:`Camera.rays`, which pixels have a ray, whether all do) of ``camera``, made once (read-only): a
+    ground-truth process casts through the same two cameras every frame, each time from a new ray caster."""
+    rays = np.moveaxis(np.ascontiguousarray(np.moveaxis(camera.rays(), -1, 0)), 0, -1)  # planes: see rotate
+    has_ray = np.isfinite(rays[..., 2])
+    for a in (rays, has_ray):
+        a.flags.writeable = False
+    return rays, has_ray, bool(has_ray.all())
 
 
 class Raycaster:
@@ -175,21 +247,31 @@ class Raycaster:
 
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
-        if self.triangles.size and (self.triangles.min() < 0 or self.triangles.max() >= len(self.vertices)):
-            raise ValueError("triangle indices out of range of the vertex array")
         self._subset = None if subset is None else np.asarray(subset, dtype=np.int64).ravel()
         cast = self.triangles if self._subset is None else self.triangles[self._subset]
+        if cast.size and (cast.min() < 0 or cast.max() >= len(self.vertices)):
+            raise ValueError("triangle indices out of range of the vertex array")
+        vertices, self._used = self.vertices, None
+        if self._subset is not None and cast.size:
+            # only the vertices of those triangles go to Open3D (the same coordinates, so the same acceleration
+            # structure and hits), not all of a large mesh's every frame
+            self._used = np.unique(cast)
+            vertices, cast = vertices[self._used], np.searchsorted(self._used, cast)
+        # the corners of the triangles cast against, as indices into _used (all vertices when None)
+        self._corners = np.ascontiguousarray(cast.T)  # (3, M): a contiguous row per corner
+        self._tables: dict[tuple[bool, bool], np.ndarray] = {}
+        # the hit's triangle id in the whole mesh, by the id Open3D reports (a miss: the last entry, -1)
+        self._ids = None if self._subset is None else np.append(self._subset, -1)
         self._o3d = o3d
         self._threads = THREADS
         self._scene = o3d.t.geometry.RaycastingScene(nthreads=self._threads)
         self._empty = not len(cast)
         if not self._empty:
             self._scene.add_triangles(
-                o3d.core.Tensor(self.vertices.astype(np.float32)),
+                o3d.core.Tensor(vertices.astype(np.float32)),
                 o3d.core.Tensor(cast.astype(np.uint32)),
             )
         self._vertex_normals = vertex_normals  # given: exact at least at the vertices of ``subset``
-        self._ray_cache: dict = {}
 
     @property
     def vertex_normals(self) -> np.ndarray:
@@ -202,28 +284,29 @@ class Raycaster:
         """First hits of rays (..., 3) in world coordinates.
 
         Returns ``t`` (float64, units of each direction's length, NaN on a miss), ``triangle_ids``
-        (int64, -1 on a miss), ``uvs`` (barycentric (u, v): point = (1-u-v) p0 + u p1 + v p2) and
-        ``face_normals`` (unit, triangle winding; NaN on a miss).
+        (int64, -1 on a miss), ``uvs`` (barycentric (u, v): point = (1-u-v) p0 + u p1 + v p2),
+        ``face_normals`` (unit, triangle winding; NaN on a miss) and ``local_ids`` (int64: the hit triangle's
+        place among those this caster casts against, ``subset``'s order; -1 on a miss).
         """
         rays = _rays(origins, directions)
         shape = rays.shape[:-1]
         if rays.size == 0 or self._empty:
             return {"t": np.full(shape, np.nan), "triangle_ids": np.full(shape, -1, np.int64),
-                    "uvs": np.full(shape + (2,), np.nan), "face_normals": np.full(shape + (3,), np.nan)}
+                    "uvs": np.full(shape + (2,), np.nan), "face_normals": np.full(shape + (3,), np.nan),
+                    "local_ids": np.full(shape, -1, np.int64)}
         out = self._scene.cast_rays(self._o3d.core.Tensor(np.ascontiguousarray(rays.reshape(-1, 6))),
                                     nthreads=self._threads)
         t = out["t_hit"].numpy().astype(np.float64).reshape(shape)
         prim = out["primitive_ids"].numpy().reshape(shape)
         hit = (prim != _INVALID) & np.isfinite(t)
-        t[~hit] = np.nan
-        ids = np.where(hit, prim.astype(np.int64), -1)
-        if self._subset is not None:
-            ids[hit] = self._subset[ids[hit]]
+        local = np.where(hit, prim.astype(np.int64), -1)
+        ids = local.copy() if self._ids is None else self._ids.take(local)  # -1: the last entry, -1
         uvs = out["primitive_uvs"].numpy().astype(np.float64).reshape(shape + (2,))
-        uvs[~hit] = np.nan
         fn = out["primitive_normals"].numpy().astype(np.float64).reshape(shape + (3,))
-        fn[~hit] = np.nan
-        return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn}
+        if not hit.all():
+            missed = ~hit
+            t[missed], uvs[missed], fn[missed] = np.nan, np.nan, np.nan
+        return {"t": t, "triangle_ids": ids, "uvs": uvs, "face_normals": fn, "local_ids": local}
 
     def blocked(self, origins: np.ndarray, directions: np.ndarray, t_max: float) -> np.ndarray:
         """Bool (...): a surface lies on each ray (..., 3) before ``t_max`` (units of the direction's
@@ -241,45 +324,23 @@ class Raycaster:
 
         This is the normal a smooth-shaded mesh shows (Blender/Cycles); NaN where ``triangle_ids`` < 0.
         """
-        ids = np.asarray(triangle_ids)
-        hit = ids >= 0
-        every = bool(hit.all())  # the usual case: no copies of the hits
-        if not every and not hit.any():
-            return np.full(ids.shape + (3,), np.nan)
-        tri = self.triangles[ids if every else ids[hit]]
-        uv = uvs if every else uvs[hit]
-        u, v = uv[..., 0:1], uv[..., 1:2]
-        vn = self.vertex_normals
-        # (1 - u - v) n0 + u n1 + v n2, summed in this order, then divided by its length (np.linalg.norm's
-        # sqrt of the summed squares): written into two buffers instead of a new array per operation, the
-        # same bits in half the time
-        n = vn.take(tri[..., 0], axis=0)
-        n *= 1.0 - u - v
-        term = vn.take(tri[..., 1], axis=0)
-        term *= u
-        n += term
-        vn.take(tri[..., 2], axis=0, out=term)
-        term *= v
-        n += term
-        with np.errstate(invalid="ignore", divide="ignore"):
-            n /= np.sqrt(np.square(n, out=term).sum(axis=-1, keepdims=True))
-        if every:
-            return n
-        out = np.full(ids.shape + (3,), np.nan)
-        out[hit] = n
-        return out
+        return _interpolate(self.triangles.T, self.vertex_normals.T, triangle_ids, uvs)[0]
 
-    def _rays_cam(self, camera: Camera) -> np.ndarray:
-        rays = self._ray_cache.get(camera)
-        if rays is None:
-            if len(self._ray_cache) > 8:
-                self._ray_cache.clear()
-            rays = camera.rays()
-            self._ray_cache[camera] = rays
-        return rays
+    def _table(self, normals: bool, points: bool) -> np.ndarray:
+        """Per vertex of the triangles cast against (:attr:`_corners`' indices): its vertex normal and / or its
+        position, a row per component (3 or 6, N'): one gather per corner gives both, from a table of a few
+        thousand vertices for a culled caster (in cache) instead of the whole mesh's."""
+        table = self._tables.get((normals, points))
+        if table is None:
+            columns = ([self.vertex_normals] if normals else []) + ([self.vertices] if points else [])
+            if self._used is not None:
+                columns = [c.take(self._used, axis=0) for c in columns]
+            table = np.ascontiguousarray(np.concatenate(columns, axis=1).T)
+            self._tables[(normals, points)] = table
+        return table
 
     def cast(self, camera: Camera, T_world_cam: np.ndarray, normals: str = "face",
-             with_uvs: bool = False, face_normals: bool = True) -> dict[str, np.ndarray]:
+             with_uvs: bool = False, face_normals: bool = True, points: bool = False) -> dict[str, np.ndarray]:
         """Render the mesh from ``camera`` along the ray of each pixel centre (:meth:`Camera.rays`).
 
         Parameters
@@ -289,6 +350,9 @@ class Raycaster:
         normals : ``"face"`` (geometric triangle normals), ``"smooth"`` (interpolated angle-weighted
             vertex normals, what a smooth-shaded render shows) or ``"none"``.
         face_normals : with ``"smooth"``, whether to return the face normals too (``face_normals_cam``).
+        points : whether to return the hit points, world frame, as the triangle's corners weighted by the
+            barycentric coordinates (``(0 + (1-u-v) p0) + u p1 + v p2``: the bits of
+            :meth:`~rgbd2scene.groundtruth.scene_geometry.SceneGeometry.follow` at this mesh's vertices).
 
         Returns
         -------
@@ -300,22 +364,29 @@ class Raycaster:
         """
         T = np.asarray(T_world_cam, dtype=np.float64)
         R, c = T[:3, :3], T[:3, 3]
-        rays_cam = self._rays_cam(camera)  # unit z: t_hit is planar depth
-        has_ray = np.isfinite(rays_cam[..., 2])
-        directions = rotate(R, rays_cam if has_ray.all() else np.where(has_ray[..., None], rays_cam, (0, 0, 1.0)))
+        rays_cam, has_ray, every = _camera_rays(camera)  # unit z: t_hit is planar depth
+        directions = rotate(R, rays_cam if every else np.where(has_ray[..., None], rays_cam, (0, 0, 1.0)),
+                            planar=True)
         hit = self.cast_rays(c, directions)
         hit = _recast_vertex_misses(self, hit, c, directions, R)
-        if not has_ray.all():  # beyond a lens fold: no ray, nothing seen
+        if not every:  # beyond a lens fold: no ray, nothing seen
             hit["t"][~has_ray] = np.nan
             hit["triangle_ids"][~has_ray] = -1
             hit["uvs"][~has_ray] = np.nan
             hit["face_normals"][~has_ray] = np.nan
+            hit["local_ids"][~has_ray] = -1
         result = {"depth": hit["t"].astype(np.float32), "triangle_ids": hit["triangle_ids"]}
+        smooth = points_world = None
+        if normals == "smooth" or points:
+            smooth, points_world = _interpolate(self._corners, self._table(normals == "smooth", points),
+                                                hit["local_ids"], hit["uvs"], normals == "smooth", points)
+        if points:
+            result["points"] = points_world
         if normals == "face":
             face_cam = rotate(R.T, hit["face_normals"])  # world -> camera: R^T n
             result["normals_cam"] = (face_cam * _side(face_cam, rays_cam)).astype(np.float32)
         elif normals == "smooth":
-            smooth = rotate(R.T, self.smooth_normals(hit["triangle_ids"], hit["uvs"]))
+            smooth = rotate(R.T, smooth, planar=True)
             result["normals_cam"] = _facing(smooth, rays_cam, hit["face_normals"], R).astype(np.float32)
             if face_normals:
                 face_cam = rotate(R.T, hit["face_normals"])
@@ -358,7 +429,7 @@ def triangles_in_view(vertices: np.ndarray, triangles: np.ndarray, views, margin
     keep = np.zeros(len(tri), bool)
     for camera, T in views:
         x0, x1, y0, y1 = camera.normalised_bounds(margin_px)
-        x, y, z = transform_points(invert_pose(np.asarray(T, dtype=np.float64)), vertices).T
+        x, y, z = transform_points(invert_pose(np.asarray(T, dtype=np.float64)), vertices, planar=True).T
         # one bit per frustum plane; x / z >= x0  <=>  x - x0 z >= 0 for z > 0
         code = ((z <= 0).astype(np.uint8)
                 | ((x - x0 * z < 0) << 1).astype(np.uint8)
@@ -367,6 +438,95 @@ def triangles_in_view(vertices: np.ndarray, triangles: np.ndarray, views, margin
                 | ((y - y1 * z > 0) << 4).astype(np.uint8))
         keep |= (code[tri[:, 0]] & code[tri[:, 1]] & code[tri[:, 2]]) == 0
     return np.flatnonzero(keep)
+
+
+#: Triangles per block of :class:`TriangleBlocks` (measured on the bundled 609k-triangle grid mesh: 128 builds
+#: in 14 ms, 64 in 25 ms; a block's box is then about 0.2 x 0.005 x 0.02 of the mesh's 1 m x 0.65 m).
+BLOCK = 128
+#: Rounding allowance of a block's frustum test, relative to the size of the coordinates: the corner codes of
+#: :func:`triangles_in_view` are computed with errors of a few 1e-16 of it, a block decides only beyond 1e-9.
+_BLOCK_TOL = 1e-9
+
+
+def _frustum_planes(camera: Camera, margin_px: float) -> np.ndarray:
+    """(5, 3) camera-frame plane normals n_j of :func:`triangles_in_view`'s five codes, signed so that a
+    point q is outside plane j (its code bit j set) exactly when n_j . q < 0 (z: when z <= 0)."""
+    x0, x1, y0, y1 = camera.normalised_bounds(margin_px)
+    return np.array([[0.0, 0.0, 1.0], [1.0, 0.0, -x0], [-1.0, 0.0, x1], [0.0, 1.0, -y0], [0.0, -1.0, y1]])
+
+
+class TriangleBlocks:
+    """A mesh's triangles in blocks of :data:`BLOCK` consecutive indices, each with a box holding its corners:
+    :func:`triangles_in_view` of a large mesh seen in small part, the same indices, for a fraction of the cost.
+
+    A block whose box lies beyond one frustum plane of every camera (by more than the rounding of the corner
+    test) is left out whole, one whose box lies inside every plane of a camera is kept whole; only the
+    triangles of blocks the frustum's border crosses get :func:`triangles_in_view`'s corner test itself. A mesh
+    in spatially coherent order (a capture's grid mesh: rows of pixels) makes small boxes; any order gives
+    the same indices.
+
+    Parameters
+    ----------
+    vertices : (N, 3) the mesh's vertices in its own frame (a part's rest frame).
+    triangles : (M, 3) indices.
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, size: int = BLOCK):
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        self.count, self.size = len(tri), int(size)
+        pad = (-len(tri)) % self.size
+        if pad and len(tri):  # the last block repeats its last triangle: the same box
+            tri = np.concatenate([tri, np.repeat(tri[-1:], pad, axis=0)])
+        corners = tri.reshape(-1, self.size * 3)
+        lo, hi = np.empty((len(corners), 3)), np.empty((len(corners), 3))
+        for k in range(3):  # per coordinate: a gather and a row reduction of contiguous arrays
+            c = np.ascontiguousarray(v[:, k]).take(corners)
+            lo[:, k], hi[:, k] = c.min(axis=1), c.max(axis=1)
+        self.centre, self.half = (lo + hi) / 2, (hi - lo) / 2
+        self.reach = float(np.abs(self.centre).max(initial=0.0) + self.half.max(initial=0.0))
+
+    def in_view(self, vertices: np.ndarray, triangles: np.ndarray, views, pose: np.ndarray | None = None,
+                grow: float = 0.0, margin_px: float = 1.0) -> np.ndarray:
+        """:func:`triangles_in_view` ``(vertices, triangles, views, margin_px)``: the same indices.
+
+        ``vertices``: the mesh's world-frame vertices now, ``pose`` (4, 4) (default identity) times its own
+        vertices moved by at most ``grow`` (a deformation's largest displacement; 0: rigid).
+        """
+        tri = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        P = np.eye(4) if pose is None else np.asarray(pose, dtype=np.float64)
+        blocks = len(self.centre)
+        if not blocks:
+            return np.zeros(0, np.int64)
+        dropped, whole = np.ones(blocks, bool), np.zeros(blocks, bool)
+        for camera, T in views:
+            T = np.asarray(T, dtype=np.float64)
+            A = T[:3, :3].T @ P[:3, :3]  # block frame -> camera frame: q = A p + b
+            b = T[:3, :3].T @ (P[:3, 3] - T[:3, 3])
+            planes = _frustum_planes(camera, margin_px)
+            G, h = planes @ A, planes @ b
+            mid = self.centre @ G.T + h
+            rad = (self.half + grow) @ np.abs(G).T
+            tol = _BLOCK_TOL * np.abs(planes).sum(axis=1).max() * (self.reach + grow + np.abs(P[:3, 3]).max()
+                                                                   + np.abs(T[:3, 3]).max() + 1.0)
+            dropped &= (mid + rad < -tol).any(axis=1)
+            whole |= (mid - rad > tol).all(axis=1)
+        step = np.arange(self.size)
+        kept = (np.flatnonzero(whole & ~dropped)[:, None] * self.size + step).ravel()
+        border = (np.flatnonzero(~whole & ~dropped)[:, None] * self.size + step).ravel()
+        border = border[border < self.count]
+        if len(border):
+            corners = tri[border]
+            used = np.zeros(len(vertices), bool)
+            used[corners] = True
+            used = np.flatnonzero(used)
+            local = np.empty(len(vertices), np.int64)
+            local[used] = np.arange(len(used))
+            # the corner test on these triangles' vertices alone: elementwise, the same codes as on all of them
+            seen = triangles_in_view(np.asarray(vertices)[used], local[corners], views, margin_px)
+            kept = np.concatenate([kept, border[seen]])
+        kept = np.sort(kept[kept < self.count])
+        return kept
 
 
 def raycaster(vertices: np.ndarray, triangles: np.ndarray) -> Raycaster:

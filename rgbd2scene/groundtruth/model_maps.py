@@ -82,8 +82,11 @@ class ModelGroundTruth:
         rig, geometry, maps = self.description.rig, self.geometry, self.maps
         camera = rig.camera(eye)
         T = self.description.camera_pose(index, eye)
-        hit = geometry.cast(index, camera, T, normals="smooth" if "normals" in maps else "none", face_normals=False)
+        hit = geometry.cast(index, camera, T, normals="smooth" if "normals" in maps else "none", face_normals=False,
+                            points=True)
         surface = hit["triangle_ids"] >= 0
+        # the surface points under the pixels, at any frame (at this one: the cast's own)
+        follow = geometry.follow(hit["triangle_ids"], hit["uvs"], seen=(index, hit["points"]))
         depth = hit["depth"]
         out: dict[str, np.ndarray] = {}
         if "depth" in maps:
@@ -92,11 +95,10 @@ class ModelGroundTruth:
             if rig.rectified:
                 out["disparity"] = disparity_from_depth(depth, float(camera.K[0, 0]), rig.baseline)
             else:
-                out["correspondence"] = self._correspondence(index, eye, hit)
+                out["correspondence"] = self._correspondence(index, eye, hit, follow(index))
         if "normals" in maps:
             out["normals"] = hit["normals_cam"]
         if "flow_forward" in maps or "flow_backward" in maps:
-            follow = geometry.follow(hit["triangle_ids"], hit["uvs"])
             for key, other in (("flow_forward", index + 1), ("flow_backward", index - 1)):
                 if key not in maps:
                     continue
@@ -104,13 +106,13 @@ class ModelGroundTruth:
                     out[key] = np.full(depth.shape + (2,), np.nan, np.float32)
                     continue
                 T_other = self.description.camera_pose(other, eye)
-                flow = _pixel_offsets(camera, transform_points(invert_pose(T_other), follow(other)))
+                flow = _pixel_offsets(camera, transform_points(invert_pose(T_other), follow(other), planar=True))
                 flow[~surface] = np.nan
                 out[key] = flow
         if "segmentation" in maps:
             out["segmentation"] = hit["instance_ids"]
         if self.moving:
-            out.update(occlusion_maps(geometry, index, self.frames, eye, camera, hit=hit))
+            out.update(occlusion_maps(geometry, index, self.frames, eye, camera, hit=hit, moved_to=follow))
         out["K"] = camera.K
         out["D"] = camera.distortion
         out["T_world_cam"] = T
@@ -119,15 +121,15 @@ class ModelGroundTruth:
         out["object_poses"] = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
         return out
 
-    def _correspondence(self, index: int, eye: str, hit: dict) -> np.ndarray:
-        """(H, W, 2): the pixel of the other eye that sees the same surface point at the same frame, minus
-        this pixel; NaN where no surface, or the other eye does not see the point (hidden, or outside)."""
+    def _correspondence(self, index: int, eye: str, hit: dict, points: np.ndarray) -> np.ndarray:
+        """(H, W, 2): the pixel of the other eye that sees the same surface point (``points``: the world points of
+        ``hit``) at the same frame, minus this pixel; NaN where no surface, or the other eye does not see the
+        point (hidden, or outside)."""
         rig, geometry = self.description.rig, self.geometry
         other = "right" if eye == "left" else "left"
         camera = rig.camera(other)
         T_other = self.description.camera_pose(index, other)
-        points = geometry.follow(hit["triangle_ids"], hit["uvs"])(index)
-        out = _pixel_offsets(camera, transform_points(invert_pose(T_other), points))
+        out = _pixel_offsets(camera, transform_points(invert_pose(T_other), points, planar=True))
         hidden = geometry.hidden(points, camera, T_other, index)
         out[hidden | (hit["triangle_ids"] < 0)] = np.nan
         return out

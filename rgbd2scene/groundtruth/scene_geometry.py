@@ -21,7 +21,7 @@ import numpy as np
 from rgbd2scene.conventions import invert_pose, transform_points
 from rgbd2scene.geometry.camera import Camera
 from rgbd2scene.geometry.mesh import vertex_normals
-from rgbd2scene.geometry.raycast import Raycaster, triangles_in_view
+from rgbd2scene.geometry.raycast import Raycaster, TriangleBlocks
 from rgbd2scene.groundtruth.geometry_cache import mesh_arrays
 from rgbd2scene.scene.deformation import rest_normals
 from rgbd2scene.scene.model import Part, SceneDescription
@@ -38,6 +38,8 @@ class _PartMesh:
     triangles: np.ndarray
     normals: np.ndarray | None  # rest normals, for deforming parts
     basis: np.ndarray | None  # the deformation's basis fields B_k (K, N) at the rest vertices
+    blocks: TriangleBlocks | None = None  # made on first use (see SceneGeometry.in_view)
+    reach: tuple[float, np.ndarray] | None = None  # max |n|, max |B_k| (K,): see SceneGeometry._largest_displacement
 
 
 class SceneGeometry:
@@ -69,7 +71,8 @@ class SceneGeometry:
         self._vertices: OrderedDict[int, np.ndarray] = OrderedDict()
         self._in_view: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._cache_size = max(1, int(cache))
-        self._static_normals: np.ndarray | None = None
+        self._static_normals: np.ndarray | None = None  # a static scene's (see _normals)
+        self._known: np.ndarray | None = None  # which of them are computed, when only some are
         self._corner_order: tuple[np.ndarray, np.ndarray] | None = None  # see _triangles_around
         self._lock = threading.RLock()  # the render worker asks from two threads
 
@@ -113,18 +116,45 @@ class SceneGeometry:
         """Indices (into :attr:`triangles`) of the triangles that ``frame``'s two eyes may see
         (:func:`~rgbd2scene.geometry.raycast.triangles_in_view`), computed once per frame and view.
 
+        Each part's triangles are tested block by block in its rest frame
+        (:class:`~rgbd2scene.geometry.raycast.TriangleBlocks`: the same indices, a few ms instead of 15-20 for
+        the bundled sample's 609k triangles), moved by the part's pose and grown by its deformation's largest
+        displacement at that frame.
+
         ``cameras``: the (left, right) cameras, or one camera looked through at both eyes' poses."""
         pair = tuple(cameras) if isinstance(cameras, tuple | list) else (cameras, cameras)
         key = (int(frame), pair)
         with self._lock:
             out = self._in_view.get(key)
             if out is None:
-                out = triangles_in_view(self.vertices(frame), self.triangles,
-                                        list(zip(pair, self._eye_poses(frame), strict=True)))
+                views = list(zip(pair, self._eye_poses(frame), strict=True))
+                vertices = self.vertices(frame)
+                out = np.concatenate([
+                    self._triangle_offsets[i] + self._blocks(m).in_view(
+                        vertices[self._offsets[i]:self._offsets[i + 1]], m.triangles, views,
+                        m.part.pose_at(frame), self._largest_displacement(m, frame))
+                    for i, m in enumerate(self.meshes)])
                 self._in_view[key] = out
                 while len(self._in_view) > self._cache_size:
                     self._in_view.popitem(last=False)
             return out
+
+    @staticmethod
+    def _blocks(m: _PartMesh) -> TriangleBlocks:
+        if m.blocks is None:
+            m.blocks = TriangleBlocks(m.vertices, m.triangles)
+        return m.blocks
+
+    def _largest_displacement(self, m: _PartMesh, frame: int) -> float:
+        """A bound on how far ``m``'s deformation moves any vertex at ``frame`` (0 for a rigid part):
+        |n_i (c . B_i)| <= max |n| * sum_k |c_k| max_i |B_k,i|."""
+        if m.part.deformation is None:
+            return 0.0
+        if m.reach is None:
+            m.reach = (float(np.linalg.norm(m.normals, axis=1).max(initial=0.0)),
+                       np.abs(m.basis).max(axis=1, initial=0.0))
+        c = m.part.deformation.coefficients(self.description.time(frame))
+        return m.reach[0] * float(np.abs(c) @ m.reach[1]) * (1 + 1e-9)
 
     def raycaster(self, frame: int, camera: Camera | None = None, T_world_cam: np.ndarray | None = None) -> Raycaster:
         """The scene at ``frame`` ready for ray casting from ``camera`` at ``T_world_cam``.
@@ -158,19 +188,43 @@ class SceneGeometry:
         For a cast against ``subset``: those of the vertices of its triangles (zero elsewhere), computed on the
         triangles around them only (every triangle sharing a vertex with one, in the mesh's order, so each
         vertex's sum has the same terms in the same order as over the whole mesh: the same bits), a few
-        thousand triangles instead of the whole mesh. For the whole scene: a static scene's, once; None for a
-        moving one (the caster computes them).
+        thousand triangles instead of the whole mesh. A static scene's are kept from frame to frame (each vertex's
+        normal is computed the first time a frame needs it). For the whole scene: a static scene's, once; None
+        for a moving one (the caster computes them).
         """
         vertices = self.vertices(frame)
         if subset is None:
-            if self.static and self._static_normals is None:
-                self._static_normals = vertex_normals(vertices, self.triangles, "angle")
+            if self.static and (self._static_normals is None or self._known is not None):
+                self._static_normals, self._known = vertex_normals(vertices, self.triangles, "angle"), None
             return self._static_normals if self.static else None
+        if self.static:
+            return self._static_normals_of(vertices, subset)
         around = self.triangles[self._triangles_around(subset)]
         used, corners = np.unique(around, return_inverse=True)
         out = np.zeros((len(vertices), 3))
         out[used] = vertex_normals(vertices[used], corners.reshape(-1, 3), "angle")
         return out
+
+    def _static_normals_of(self, vertices: np.ndarray, subset: np.ndarray) -> np.ndarray:
+        """A static scene's vertex normals, right at least at the vertices of ``subset``'s triangles: those not
+        known yet are computed (from the triangles around them, as :meth:`_normals`) into the array kept for
+        every frame; the others are left as they are (casters of earlier frames read them)."""
+        if self._static_normals is not None and self._known is None:
+            return self._static_normals  # all of them, made for a cast against the whole scene
+        if self._static_normals is None:
+            self._static_normals = np.zeros((len(vertices), 3))
+            self._known = np.zeros(len(vertices), bool)
+        corners = self.triangles[subset]
+        unknown = ~self._known[corners]
+        if unknown.any():
+            touching = subset[unknown.any(axis=1)]
+            around = self.triangles[self._triangles_around(touching)]
+            used, local = np.unique(around, return_inverse=True)
+            normals = vertex_normals(vertices[used], local.reshape(-1, 3), "angle")
+            new = np.unique(corners[unknown])  # each with all its triangles in ``around``: exact
+            self._static_normals[new] = normals[np.searchsorted(used, new)]
+            self._known[new] = True
+        return self._static_normals
 
     def _triangles_around(self, subset: np.ndarray) -> np.ndarray:
         """Indices of every triangle sharing a vertex with one of ``subset``, ascending (from each vertex's
@@ -178,7 +232,8 @@ class SceneGeometry:
         if self._corner_order is None:
             corner_vertices = self.triangles.ravel()
             order = np.argsort(corner_vertices, kind="stable")
-            starts = np.searchsorted(corner_vertices[order], np.arange(self._offsets[-1] + 1))
+            counts = np.bincount(corner_vertices, minlength=self._offsets[-1])  # corners per vertex
+            starts = np.concatenate([[0], np.cumsum(counts)])  # = searchsorted of the sorted corners, 3x faster
             self._corner_order = order // 3, starts
         triangle_of, starts = self._corner_order
         vertices = np.unique(self.triangles[subset])
@@ -206,13 +261,14 @@ class SceneGeometry:
         return np.flatnonzero(keep)
 
     def cast(self, frame: int, camera: Camera, T_world_cam: np.ndarray,
-             normals: str = "smooth", face_normals: bool = True) -> dict[str, np.ndarray]:
-        """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``) plus ``instance_ids``
-        (H, W) uint16 (0 on a miss)."""
+             normals: str = "smooth", face_normals: bool = True, points: bool = False) -> dict[str, np.ndarray]:
+        """:meth:`Raycaster.cast` of the scene at ``frame`` (with barycentric ``uvs``; with ``points``, the hit
+        points: :meth:`follow`'s at ``frame``, the same bits) plus ``instance_ids`` (H, W) uint16 (0 on a miss)."""
         rc = self.raycaster(frame, camera, T_world_cam)
-        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True, face_normals=face_normals)
+        hit = rc.cast(camera, T_world_cam, normals=normals, with_uvs=True, face_normals=face_normals,
+                      points=points)
         tri = hit["triangle_ids"]
-        hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids[np.maximum(tri, 0)], 0).astype(np.uint16)
+        hit["instance_ids"] = np.where(tri >= 0, self.triangle_ids.take(np.maximum(tri, 0)), 0).astype(np.uint16)
         return hit
 
     def moved_points(self, triangle_ids: np.ndarray, uvs: np.ndarray, frame: int) -> np.ndarray:
@@ -220,20 +276,32 @@ class SceneGeometry:
         :meth:`cast` reports them at any frame); NaN where ``triangle_ids`` < 0."""
         return self.follow(triangle_ids, uvs)(frame)
 
-    def follow(self, triangle_ids: np.ndarray, uvs: np.ndarray):
+    def follow(self, triangle_ids: np.ndarray, uvs: np.ndarray, seen: tuple[int, np.ndarray] | None = None):
         """``frame -> (..., 3)`` world positions of the surface points (triangle, barycentric (u, v)) at
         that frame, NaN where ``triangle_ids`` < 0: :meth:`moved_points` for several frames, the corner
-        indices and weights gathered once."""
-        tri = np.asarray(triangle_ids)
-        corners = self.triangles[np.maximum(tri, 0)]  # (..., 3) vertex indices
-        u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
-        weights = (1.0 - u - v, u, v)
+        indices and weights gathered once (when first needed).
 
-        followed: dict[int, np.ndarray] = {}  # by vertex key: a static scene's points are the same every frame
+        ``seen``: (frame, the points at that frame) when known already (:meth:`cast`'s ``points``): a static
+        scene's points at every frame."""
+        tri = np.asarray(triangle_ids)
+        gathered: list = []
+
+        def corners_and_weights():
+            if not gathered:
+                u, v = np.where(tri >= 0, uvs[..., 0], np.nan)[..., None], uvs[..., 1:2]
+                gathered.extend([self.triangles.take(np.maximum(tri, 0), axis=0), (1.0 - u - v, u, v)])
+            return gathered
+
+        # by vertex key: a static scene's points are the same every frame
+        followed: dict[int, np.ndarray] = {}
+        if seen is not None:
+            seen[1].flags.writeable = False  # shared by the callers
+            followed[self._frame_key(seen[0])] = seen[1]
 
         def at(frame: int) -> np.ndarray:
             key = self._frame_key(frame)
             if key not in followed:
+                corners, weights = corners_and_weights()
                 vertices = self.vertices(frame)
                 # 0 + w0 p0 + w1 p1 + w2 p2 in this order, as sum() added them (its 0 turns -0.0 into 0.0: the
                 # same bits), in two buffers
@@ -258,7 +326,7 @@ class SceneGeometry:
         valid = np.all(np.isfinite(p), axis=-1)
         if not valid.any():
             return valid
-        u, v = camera.project(transform_points(invert_pose(T_world_cam), p))
+        u, v = camera.project(transform_points(invert_pose(T_world_cam), p, planar=True))
         inside = camera.in_image(u, v)
         centre = np.asarray(T_world_cam, dtype=np.float64)[:3, 3]
         # only points that project into the image are cast at: the segment to such a point lies in the
@@ -270,7 +338,7 @@ class SceneGeometry:
 
 
 def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, camera: Camera,
-                   hit: dict | None = None) -> dict[str, np.ndarray]:
+                   hit: dict | None = None, moved_to=None) -> dict[str, np.ndarray]:
     """``occluded_forward`` / ``occluded_backward`` (H, W) bool of one eye (seen through ``camera``) at ``frame``
     (CONVENTIONS §3).
 
@@ -284,7 +352,8 @@ def occlusion_maps(geometry: SceneGeometry, frame: int, frames: int, eye: str, c
     if hit is None:
         hit = geometry.cast(frame, camera, description.camera_pose(frame, eye), normals="none")
     surface = hit["triangle_ids"] >= 0
-    moved_to = geometry.follow(hit["triangle_ids"], hit["uvs"])
+    if moved_to is None:  # else: ``geometry.follow`` of that hit, already made (the flow's)
+        moved_to = geometry.follow(hit["triangle_ids"], hit["uvs"])
     out = {}
     for key, other in (("occluded_forward", frame + 1), ("occluded_backward", frame - 1)):
         if not 0 <= other < frames:
