@@ -140,6 +140,25 @@ def test_auto_fills_a_shadow_with_the_far_depth():
     assert smooth_err > 0.2  # a smooth fill would mix in the near box: what the background fill avoids
 
 
+def test_a_highlight_across_an_edge_is_not_a_shadow():
+    """A short run across the near box's edge, as narrow as a shadow there, whose pixels show a highlight
+    (white, brighter than both ends) is no shadow: half of it lies on the box. The same run in the far
+    wall's colour is one."""
+    truth, rgb = step_scene()
+    depth = truth.copy()
+    run = np.zeros((H, W), bool)
+    run[40:60, 88:92] = True  # cols 88-89 on the wall, 90-91 on the box
+    depth[run] = np.nan
+    lit = rgb.copy()
+    lit[run] = 255
+    shiny = fill_depth(depth, lit, "auto")
+    assert not shiny.parts["shadow"][run].any()
+    on_box = run & (truth < 1.5)
+    assert np.abs(shiny.depth[on_box] - truth[on_box]).mean() < 0.5  # the far wall's 2 m would be 1 m off
+    plain = fill_depth(depth, rgb, "auto")  # the colour camera sees the wall's colour there: a shadow
+    assert plain.parts["shadow"][run].all()
+
+
 def test_step_runs_and_shadow_width():
     truth, _ = step_scene()
     width = shadow_width(truth, 90, 89, 0.075)

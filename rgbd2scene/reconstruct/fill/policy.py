@@ -25,7 +25,10 @@ What ``auto`` does
    the far surface. Only as far as the shadow reaches from the far end
    (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_split`): a pixel of the run beyond round(width) px
    of it, whose colour is nearer the near end's, is a dropout on the near surface's rim and takes the
-   near end's depth (issue 17 section 2: the bundled sample's rims). Time-of-flight sensors and
+   near end's depth (issue 17 section 2: the bundled sample's rims). A run holding a highlight
+   brighter than both its ends (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no
+   shadow: the colour camera sees the far surface in a shadow, not the light; it is filled as a hole
+   (2. or 3.). Time-of-flight sensors and
    ``sensor="none"`` cast no shadows: nothing is filled this way. For the Kinect v1 model, in the real
    TUM frame the step-bridging hole runs left of a near surface have a median width of 0.96 times the
    7.5 cm bound (shadows), those right of it 3.6 times (mostly dropouts), so wider runs are not taken
@@ -299,7 +302,7 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
     out = work.copy()
     counts: dict[str, int] = {}
     runs = step_runs(work, todo, step)
-    kept, width = shadow_runs(runs, work, fx, baselines)
+    kept, width = shadow_runs(runs, work, fx, baselines, rgb=rgb)
     shadow, rim = shadow_split(kept, width, work.shape, rgb)
     shadow &= todo
     rim &= todo
