@@ -19,31 +19,27 @@ def _bench():
     return module
 
 
-def test_shifted_moves_a_mask_and_keeps_a_band_on_the_edge():
+def test_report_draws_no_source_and_flip_a_tuning_seed_draws_on_a_tuning_capture():
     bench = _bench()
-    mask = np.zeros((40, 60), bool)
-    mask[:, :3] = True  # a band along the left edge
-    mask[20:25, 30:35] = True
-    moved = bench.shifted(mask, 4, 6)
-    assert moved[24:29, 36:41].all() and moved.sum() == 40 * 9 + 25
-    assert moved[:, :9].all()  # the band moved away from the edge, and the opened strip repeats it
-    assert np.array_equal(bench.shifted(mask, 0, 0), mask)
+    sources = ["nyu", "sun", "redwood0", "tissue"]
+    tuned = {bench.transplant_draw("tum", s, sources) for s in bench.TUNE_SEEDS}
+    report = [bench.transplant_draw("tum", s, sources, disjoint=True) for s in bench.SPLITS["report"]["seeds"]]
+    assert not tuned & set(report)
+    old = [bench.transplant_draw("tum", s, sources) for s in bench.SPLITS["report"]["seeds"]]
+    assert tuned & set(old)  # what it is for: unrestricted, report TUM 11 and 12 were tuning TUM 1, 2 and 4
+    # a capture outside the tuning split draws as before
+    assert [bench.transplant_draw("sun", s, sources, disjoint=True) for s in (10, 11, 12)] == [
+        bench.transplant_draw("sun", s, sources) for s in (10, 11, 12)]
 
 
 def test_no_report_transplant_mask_is_a_tuning_mask(shared_samples):
     bench = _bench()
     everything = bench.load_captures()
-    caps = [c for c in everything if c.name in ("tum", "tissue")]
+    caps = [c for c in everything if c.name in bench.SPLITS["tune"]["captures"]]
     sources = bench.hole_masks(everything)
-    tune = bench.build_cases(caps, ("transplant",), range(8), sources, shift=bench.SPLITS["tune"]["shift"])
+    tune = bench.build_cases(caps, ("transplant",), bench.TUNE_SEEDS, sources)
     report = bench.build_cases(caps, ("transplant",), bench.SPLITS["report"]["seeds"], sources,
-                               shift=bench.SPLITS["report"]["shift"])
-    unshifted = bench.build_cases(caps, ("transplant",), bench.SPLITS["report"]["seeds"], sources)
-
-    def repeats(cases):
-        return [(t["capture"].name, t["seed"], r["seed"]) for t in tune for r in cases if t["capture"] is r["capture"]
+                               disjoint=bench.SPLITS["report"]["disjoint"])
+    assert len(report) == 3 * len(caps)
+    assert not [(t["capture"].name, t["seed"], r["seed"]) for t in tune for r in report if t["capture"] is r["capture"]
                 and np.array_equal(t["scored"]["transplant"], r["scored"]["transplant"])]
-
-    assert repeats(unshifted)  # what the shift is for: tuning TUM transplant 2 and 4 were report TUM 12
-    assert not repeats(report)
-    assert all("shifted" in c["note"] for c in report)
