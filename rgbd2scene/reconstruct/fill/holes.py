@@ -338,8 +338,12 @@ def _swept(centres: np.ndarray, radius: float) -> np.ndarray:
 # specular highlights
 
 
-def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = 200.0, max_saturation: float = 0.3,
-                     contrast: float = 20.0, sigma: float = 3.0) -> np.ndarray:
+#: The least HSV value (of 255) of a highlight pixel (:func:`highlight_pixels`).
+HIGHLIGHT_VALUE = 200.0
+
+
+def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = HIGHLIGHT_VALUE,
+                     max_saturation: float = 0.3, contrast: float = 20.0, sigma: float = 3.0) -> np.ndarray:
     """Hole pixels that show a specular highlight: bright (HSV value >= ``min_value`` of 255), unsaturated
     (saturation <= ``max_saturation``) and brighter by ``contrast`` than the surface around the hole.
 
@@ -524,7 +528,11 @@ def highlight_runs(runs: StepRuns, rgb: np.ndarray, holes: np.ndarray, contrast:
     value = np.asarray(rgb).max(axis=2).astype(np.float64)
     ends = np.maximum(value[runs.line, runs.start - 1], value[runs.line, runs.stop])
     row = runs.line[run]
-    cell = highlight_pixels(rgb, holes)[row, pos] & (value[row, pos] >= ends[run] + contrast)
+    # bright enough for a highlight (highlight_pixels' least value) and brighter than both ends: the test on
+    # the whole image only where some cell is (seldom)
+    cell = value[row, pos] >= np.maximum(ends[run] + contrast, HIGHLIGHT_VALUE)
+    if cell.any():
+        cell &= highlight_pixels(rgb, holes)[row, pos]
     out = np.zeros(runs.line.size, dtype=bool)
     np.logical_or.at(out, run, cell)
     return out
