@@ -26,7 +26,7 @@ from rgbd2scene.reconstruct.fill import (
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
 from rgbd2scene.reconstruct.fill.policy import NAMES, HoleTraits, choose_per_hole
-from rgbd2scene.reconstruct.fill.solvers import clip_to_rim
+from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -138,6 +138,25 @@ def test_auto_fills_a_shadow_with_the_far_depth():
         assert np.abs(out[shadow] - far).max() < 0.02 * far.max()
     smooth_err = np.abs(fill_biharmonic(depth)[shadow] - far).mean()
     assert smooth_err > 0.2  # a smooth fill would mix in the near box: what the background fill avoids
+
+
+def test_a_highlight_across_an_edge_is_not_a_shadow():
+    """A short run across the near box's edge, as narrow as a shadow there, whose pixels show a highlight
+    (white, brighter than both ends) is no shadow: half of it lies on the box. The same run in the far
+    wall's colour is one."""
+    truth, rgb = step_scene()
+    depth = truth.copy()
+    run = np.zeros((H, W), bool)
+    run[40:60, 88:92] = True  # cols 88-89 on the wall, 90-91 on the box
+    depth[run] = np.nan
+    lit = rgb.copy()
+    lit[run] = 255
+    shiny = fill_depth(depth, lit, "auto")
+    assert not shiny.parts["shadow"][run].any()
+    on_box = run & (truth < 1.5)
+    assert np.abs(shiny.depth[on_box] - truth[on_box]).mean() < 0.5  # the far wall's 2 m would be 1 m off
+    plain = fill_depth(depth, rgb, "auto")  # the colour camera sees the wall's colour there: a shadow
+    assert plain.parts["shadow"][run].all()
 
 
 def test_step_runs_and_shadow_width():
@@ -397,6 +416,55 @@ def test_border_band_is_filled_when_narrow():
     assert np.abs(res.depth[band] - truth[band]).max() < 0.03
     kept = fill_depth(depth, None, "biharmonic", fill_border=False)
     assert np.isnan(kept.depth[band]).all()
+
+
+def receding_wall() -> np.ndarray:
+    """A wall that recedes towards the left edge, steeply near it: inverse depth falls by 0.02 /m per px
+    over the 12 px beside a 10 px band (about 5 m at the band), flattening out to the right (1.5 m)."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    inv = 0.67 - 0.47 * np.exp(-(u - 10.0) / 24.0) + 0.0005 * v
+    return (1.0 / inv).astype(np.float32)
+
+
+def test_the_band_does_not_run_off_where_the_surface_recedes_to_the_edge():
+    """A thin plate continued to the image edge carries the receding slope on: inverse depth runs to zero
+    and depth far beyond the wall's (here to the 2x-range limit). The band's fill is bounded by the depth
+    range of the surface within the band's width, widened by 10 %; on a surface that keeps its slope
+    the bound leaves the fill alone."""
+    wall = receding_wall()
+    depth = wall.copy()
+    depth[:, :10] = np.nan  # the sensor's band
+    depth[50:70, 60:80] = np.nan  # a hole, filled with the biharmonic fill (no RGB), the band with it
+    res = fill_depth(depth, None, "auto", sensor=SENSORS["none"])
+    band = res.parts["band"]
+    assert band[:, :10].all()
+    plain = fill_biharmonic(depth, ~np.isfinite(depth))
+    reach = res.settings["border_width"]
+    farthest = np.nanmax(depth[:, : 10 + reach])
+    assert plain[band].max() > 1.5 * farthest  # the overshoot the bound removes
+    assert res.depth[band].max() <= 1.1 * farthest * (1 + 1e-6)
+    # a surface whose slope does continue to the edge (a plane in inverse depth) keeps the thin plate
+    truth = smooth_surface()
+    depth = truth.copy()
+    depth[:, :8] = np.nan
+    res = fill_depth(depth, None, "auto", sensor=SENSORS["none"])
+    np.testing.assert_allclose(res.depth[:, :8], fill_biharmonic(depth)[:, :8], rtol=1e-6)
+
+
+def test_clip_to_surround_bounds_each_pixel_by_the_valid_depth_around_it():
+    depth = np.full((H, W), 2.0, np.float32)
+    depth[:, 80:] = 4.0
+    mask = np.zeros((H, W), bool)
+    mask[:, 30:35] = mask[:, 130:135] = True
+    depth[mask] = np.nan
+    filled = np.where(mask, 9.0, depth).astype(np.float32)
+    filled[:, 30] = 1.0
+    out = clip_to_surround(filled, depth, mask, radius=10, margin=0.1)
+    assert np.allclose(out[:, 31:35], 2.2) and np.allclose(out[:, 30], 2.0 / 1.1)  # only 2 m within 10 px
+    assert np.allclose(out[:, 130:135], 4.4)
+    wide = clip_to_surround(filled, depth, mask, radius=60, margin=0.1)
+    assert np.allclose(wide[:, 31:35], 4.4)  # the 4 m surface is within reach
+    assert np.array_equal(out[~mask], filled[~mask])
 
 
 def test_open_region_needs_a_long_stretch_of_the_image_edge():

@@ -9,6 +9,7 @@ from rgbd2scene.reconstruct.fill.holes import HoleMap, classify_holes, highlight
 from rgbd2scene.reconstruct.fill.policy import FILL_METHODS, FillResult, fill_depth
 from rgbd2scene.reconstruct.fill.solvers import (
     clip_to_rim,
+    clip_to_surround,
     fill_background,
     fill_biharmonic,
     fill_colorization,
@@ -18,6 +19,7 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_row_background,
 )
 
-__all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "clip_to_rim", "fill_background",
+__all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "clip_to_rim", "clip_to_surround",
+           "fill_background",
            "fill_biharmonic", "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint",
            "fill_nyu_colorization", "fill_row_background", "highlight_pixels", "shadow_pixels", "step_runs"]

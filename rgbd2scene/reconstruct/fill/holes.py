@@ -338,8 +338,12 @@ def _swept(centres: np.ndarray, radius: float) -> np.ndarray:
 # specular highlights
 
 
-def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = 200.0, max_saturation: float = 0.3,
-                     contrast: float = 20.0, sigma: float = 3.0) -> np.ndarray:
+#: The least HSV value (of 255) of a highlight pixel (:func:`highlight_pixels`).
+HIGHLIGHT_VALUE = 200.0
+
+
+def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = HIGHLIGHT_VALUE,
+                     max_saturation: float = 0.3, contrast: float = 20.0, sigma: float = 3.0) -> np.ndarray:
     """Hole pixels that show a specular highlight: bright (HSV value >= ``min_value`` of 255), unsaturated
     (saturation <= ``max_saturation``) and brighter by ``contrast`` than the surface around the hole.
 
@@ -510,15 +514,43 @@ def near_exclusion(depth, mask, near_ends, step: float = 0.04, radius: int = 2) 
         return near_ends | (grown & known & (depth <= zmax_near * (1 + step / 2)))
 
 
+def highlight_runs(runs: StepRuns, rgb: np.ndarray, holes: np.ndarray, contrast: float = 20.0) -> np.ndarray:
+    """Per horizontal run: it holds a highlight pixel (:func:`highlight_pixels` of ``holes``) brighter by
+    ``contrast`` (HSV value of 255) than both its end pixels.
+
+    Such a run is a highlight across the edge of a surface, not an occlusion shadow: the colour camera
+    sees the far surface in a shadow, no brighter than that surface, but a specular highlight is the
+    light's own colour, brighter than either side.
+    """
+    run, pos = run_cells(runs.start, runs.stop)
+    if run.size == 0:
+        return np.zeros(runs.line.size, dtype=bool)
+    value = np.asarray(rgb).max(axis=2).astype(np.float64)
+    ends = np.maximum(value[runs.line, runs.start - 1], value[runs.line, runs.stop])
+    row = runs.line[run]
+    # bright enough for a highlight (highlight_pixels' least value) and brighter than both ends: the test on
+    # the whole image only where some cell is (seldom)
+    cell = value[row, pos] >= np.maximum(ends[run] + contrast, HIGHLIGHT_VALUE)
+    if cell.any():
+        cell &= highlight_pixels(rgb, holes)[row, pos]
+    out = np.zeros(runs.line.size, dtype=bool)
+    np.logical_or.at(out, run, cell)
+    return out
+
+
 def shadow_runs(
-    runs: StepRuns, depth: np.ndarray, fx: float, baselines: tuple[float, float], slack_px: float = 1.0
+    runs: StepRuns, depth: np.ndarray, fx: float, baselines: tuple[float, float], slack_px: float = 1.0,
+    rgb: np.ndarray | None = None,
 ) -> tuple[StepRuns, np.ndarray]:
     """The horizontal step runs no wider than an occlusion shadow can be there, and that width (px).
 
     A second viewpoint (projector, matching imager or colour camera) a baseline b to the right of the
     depth camera leaves a shadow fx * b * (1/z_near - 1/z_far) px wide on the far surface, left of the
     near one; one to the left leaves it right of the near surface. A run is kept when it is at most
-    ``slack_px`` wider than that.
+    ``slack_px`` wider than that and, with ``rgb``, holds no highlight brighter than both its ends
+    (:func:`highlight_runs`): the benchmark's highlights hidden across the TUM frame's edges were taken
+    for shadows and given the far depth (8-seed tuning split: TUM specular rows 4 and 5 1.31 and 1.13
+    times the best reference fill -> 1.23 and 1.04; its shadow rows and the bundled sample's unchanged).
 
     Parameters
     ----------
@@ -528,6 +560,7 @@ def shadow_runs(
     baselines : (b for holes left of the near surface, b for holes right of it), metres; 0 disables
         (``Sensor.shadow_baselines()``).
     slack_px : extra width allowed, px.
+    rgb : (H, W, 3) colour, optional: runs holding a highlight are dropped.
 
     Returns
     -------
@@ -539,6 +572,8 @@ def shadow_runs(
     zn, zf = sub.end_depths(depth)
     width = fx * b[horizontal] * (1.0 / zn - 1.0 / zf)
     keep = sub.length <= width + slack_px
+    if rgb is not None and keep.any():
+        keep[keep] = ~highlight_runs(sub.subset(keep), rgb, ~valid_depth(depth))
     return sub.subset(keep), width[keep]
 
 
@@ -603,14 +638,14 @@ def shadow_pixels(
     baselines : (b for holes left of the near surface, b for holes right of it), metres; 0 disables
         (``Sensor.shadow_baselines()``).
     slack_px : extra width allowed, px.
-    rgb : (H, W, 3) colour, optional: tells the rim dropouts beyond the shadow's reach apart; without it
-        every pixel of a kept run is shadow.
+    rgb : (H, W, 3) colour, optional: drops the runs holding a highlight and tells the rim dropouts beyond
+        the shadow's reach apart; without it every pixel of a kept run is shadow.
 
     Returns
     -------
     bool (H, W)
     """
-    kept, width = shadow_runs(runs, depth, fx, baselines, slack_px)
+    kept, width = shadow_runs(runs, depth, fx, baselines, slack_px, rgb)
     return shadow_split(kept, width, depth.shape, rgb)[0]
 
 
