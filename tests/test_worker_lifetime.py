@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -132,10 +133,11 @@ def quad_scene(tmp_path_factory) -> Path:
     return folder
 
 
-def _start_cli(scene: Path, out: Path) -> subprocess.Popen:
+def _start_cli(scene: Path, out: Path, tmp: Path | None = None) -> subprocess.Popen:
+    env = None if tmp is None else {**os.environ, "TMPDIR": str(tmp)}
     return subprocess.Popen([sys.executable, "-m", "rgbd2scene.cli", "render", str(scene), "-o", str(out),
                              *LONG_RENDER], start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+                            stderr=subprocess.DEVNULL, env=env)
 
 
 @pytestmark_linux
@@ -168,19 +170,44 @@ def test_pool_thread_killed_with_sigkill_takes_its_worker(quad_scene, tmp_path):
 
 @pytestmark_linux
 def test_sigterm_stops_the_cli_and_its_worker(quad_scene, tmp_path):
-    """SIGTERM to the CLI ends its worker too; SIGTERM to the worker stops it, and the CLI reports it."""
-    proc = _start_cli(quad_scene, tmp_path / "a")
+    """SIGTERM to the CLI ends its worker too; SIGTERM to the worker stops it, and the CLI reports it. Neither
+    leaves temporary folders behind: Blender's session folder of a killed worker goes with its caller's task
+    folder, and the task folder of a killed caller is deleted by the next caller."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = _start_cli(quad_scene, tmp_path / "a", tmp)
     worker = _wait_for_worker(proc, tmp_path / "a")
     assert _gone_after_kill(proc, worker, signal.SIGTERM) < GONE_WITHIN_S
+    left = [f.name for f in tmp.iterdir()]
+    assert len(left) == 1 and left[0].startswith(f"rgbd2scene-task-{proc.pid}@"), left  # the killed CLI's
 
     proc = subprocess.Popen([sys.executable, "-m", "rgbd2scene.cli", "render", str(quad_scene), "-o",
                              str(tmp_path / "b"), *LONG_RENDER], start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "TMPDIR": str(tmp)})
     worker = _wait_for_worker(proc, tmp_path / "b")
     os.kill(worker, signal.SIGTERM)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 1 and not _alive(worker)
     assert "render worker failed (exit status -15)" in err
+    assert list(tmp.iterdir()) == []
+
+
+def test_only_the_folders_of_ended_callers_on_this_host_are_removed(tmp_path):
+    from rgbd2scene.stages.blender import remove_orphaned_folders
+
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait()
+    host = socket.gethostname()
+    names = {"ended": f"rgbd2scene-task-{ended.pid}@{host}-ab12cd34",
+             "running": f"rgbd2scene-task-{os.getpid()}@{host}-ab12cd34",
+             "other host": f"rgbd2scene-task-{ended.pid}@not-{host}-ab12cd34",
+             "not ours": f"blender-{ended.pid}@{host}-ab12cd34"}
+    for name in names.values():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "task.json").write_text("{}")
+    assert remove_orphaned_folders(tmp_path) == 1
+    assert sorted(f.name for f in tmp_path.iterdir()) == sorted(v for k, v in names.items() if k != "ended")
 
 
 def test_a_finished_worker_leaves_no_blender_temporary_folder(quad_scene, tmp_path):

@@ -9,7 +9,9 @@ process (a CLI, a test, a benchmark or a Dask worker).
 
 A worker never outlives its parent (:func:`tie_to_parent`): killed with SIGKILL (the out-of-memory killer, a
 scheduler), a caller takes its worker with it, instead of leaving it to render on unowned until its next
-progress line hits the closed pipe.
+progress line hits the closed pipe. Nor does its scratch: each worker gets a temporary folder of the caller's
+(:func:`worker_folder`) as its ``TMPDIR``, which holds Blender's session folder too, and a folder whose caller
+was killed before it could delete it is deleted by the next caller on the machine.
 
 Batch builds reuse workers instead (:func:`reusing_workers`): inside it, :func:`run_task` sends the task to
 the calling thread's long-lived :class:`ServingWorker` (``python -m render.worker --serve``), which opens each
@@ -22,6 +24,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -54,14 +59,55 @@ REPO_ROOT = Path(__file__).resolve().parents[2]
 
 # --- running a task --------------------------------------------------------------------------------------
 
-def worker_env() -> dict:
+def worker_env(tmp: str | Path | None = None) -> dict:
     """The worker imports ``render`` and ``rgbd2scene`` from this checkout; its output is unbuffered; it knows
-    its parent's process id (:func:`tie_to_parent`)."""
+    its parent's process id (:func:`tie_to_parent`); its temporary files, Blender's session folder among them,
+    go to ``tmp`` when given (:func:`worker_folder`)."""
     env = dict(os.environ)
+    if tmp is not None:
+        env["TMPDIR"] = str(tmp)
     env[PARENT_PID_ENV] = str(os.getpid())
     env["PYTHONPATH"] = os.pathsep.join([str(REPO_ROOT)] + [p for p in [env.get("PYTHONPATH")] if p])
     env.setdefault("PYTHONUNBUFFERED", "1")
     return env
+
+
+#: Workers' temporary folders: ``rgbd2scene-task-<caller pid>@<host>-<random>`` in the system's temporary folder.
+WORKER_FOLDER = re.compile(r"rgbd2scene-task-(\d+)@(.+)-[^-]+")
+
+
+def worker_folder() -> tempfile.TemporaryDirectory:
+    """A new temporary folder for a worker (its task file and ``TMPDIR``), named after this process and host.
+
+    Blender deletes its session folder only in its own teardown, which a worker killed mid-render never runs,
+    and a caller killed with SIGKILL cannot delete its folders either: so first the folders of this host's
+    callers that are gone are deleted (:func:`remove_orphaned_folders`).
+    """
+    remove_orphaned_folders()
+    return tempfile.TemporaryDirectory(prefix=f"rgbd2scene-task-{os.getpid()}@{socket.gethostname()}-")
+
+
+def remove_orphaned_folders(root: str | Path | None = None) -> int:
+    """Delete the workers' temporary folders in ``root`` (default: the system's temporary folder) whose caller,
+    a process of this host, has ended; how many. Folders of other hosts (a shared ``TMPDIR``) are left alone."""
+    host = socket.gethostname()
+    removed = 0
+    for folder in Path(root or tempfile.gettempdir()).glob("rgbd2scene-task-*@*"):
+        match = WORKER_FOLDER.fullmatch(folder.name)
+        if match and match[2] == host and not _running(int(match[1])):
+            shutil.rmtree(folder, ignore_errors=True)
+            removed += 1
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
 
 
 def _tail(log, lines: int = 20, start: int = 0) -> str:
@@ -126,12 +172,12 @@ def run_task(task: Task, on_event: Callable[[Event], None] | None = None, python
     """
     if getattr(_local, "reuse", False):
         return _serving_worker(python).run(task, on_event, what, where)
-    with tempfile.TemporaryDirectory(prefix="rgbd2scene-task-") as tmp, tempfile.TemporaryFile() as log:
+    with worker_folder() as tmp, tempfile.TemporaryFile() as log:
         task_path = Path(tmp) / "task.json"
         task_path.write_text(task.to_json())
         cmd = [python or sys.executable, "-m", "render.worker", str(task_path)]
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=worker_env(), text=True, bufsize=1)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, env=worker_env(tmp), text=True, bufsize=1)
         try:
             events, _ = _follow(proc.stdout, on_event, t0)
             _, status, usage = os.wait4(proc.pid, 0)  # the worker's own peak memory, unlike proc.wait()
@@ -149,13 +195,15 @@ def run_task(task: Task, on_event: Callable[[Event], None] | None = None, python
 class ServingWorker:
     """One ``python -m render.worker --serve`` process, started by the thread that uses it (its Linux
     parent-death signal follows that thread), running one task at a time; its stderr is kept in a file, and
-    each task's error message is the tail of what it wrote there."""
+    each task's error message is the tail of what it wrote there; its temporary files go to a folder of its own
+    (:func:`worker_folder`), deleted when it ends."""
 
     def __init__(self, python: str | None = None):
         self.log = tempfile.TemporaryFile()
+        self.tmp = worker_folder()
         cmd = [python or sys.executable, "-m", "render.worker", SERVE_FLAG]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.log,
-                                     env=worker_env(), text=True, bufsize=1)
+                                     env=worker_env(self.tmp.name), text=True, bufsize=1)
         self.lock = threading.Lock()
         self.tasks = 0
 
@@ -178,9 +226,8 @@ class ServingWorker:
                     events, end = [], None
                 else:
                     events, end = _follow(self.proc.stdout, on_event, t0)
-            except BaseException:  # interrupted: the worker ends, and so does its log
-                _stop(self.proc)
-                self.log.close()
+            except BaseException:  # interrupted: the worker ends, and so do its log and folder
+                self.stop()
                 raise
             self.tasks += 1
             if end is None:  # the process died during the task
@@ -202,6 +249,13 @@ class ServingWorker:
         except subprocess.TimeoutExpired:
             _stop(self.proc)
         self.log.close()
+        self.tmp.cleanup()
+
+    def stop(self) -> None:
+        """End the process now (:func:`_stop`), its log and its folder with it."""
+        _stop(self.proc)
+        self.log.close()
+        self.tmp.cleanup()
 
 
 _local = threading.local()  # .reuse: inside reusing_workers(); .worker: this thread's ServingWorker
@@ -248,6 +302,7 @@ def close_workers() -> int:
                 worker.close()
             finally:
                 worker.lock.release()
-        else:
+        else:  # its thread still reads the log: leave that to it
             _stop(worker.proc)
+            worker.tmp.cleanup()
     return len(workers)
