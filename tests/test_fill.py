@@ -364,6 +364,25 @@ def test_open_background_stays_empty_notches_and_enclosed_holes_fill():
     assert not background[rows, cols].any()
 
 
+def test_colour_tells_an_outline_bitten_by_a_hole_from_the_background():
+    """A hole across the bulging top of a dome on nothing (CT-like depth): the outline's shape alone
+    leaves the bite's pixels near and beyond the chord of the bite open (24 of 209), but in the registered
+    colour they are the dome's (red on a blue drape), so they are filled; the drape stays empty."""
+    truth, organ = dome_scene()
+    rng = np.random.default_rng(3)
+    rgb = np.where(organ[..., None], [180, 80, 80], [40, 90, 140]) + rng.integers(-15, 16, (H, W, 3))
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    bite = disc(22, 80, 12) & organ
+    depth = truth.copy()
+    depth[bite] = np.nan
+    assert (classify_holes(depth, border_width=12, min_radius=6).open & bite).sum() >= 20
+    res = fill_depth(depth, rgb, "auto", sensor=get_sensor("none"))
+    assert np.isfinite(res.depth[bite]).all()
+    err = np.abs(res.depth[bite] - truth[bite])  # the dome's rim drops steeply: its outline is 8 cm deep
+    assert err.mean() < 0.01 and err.max() < 0.05
+    assert np.isnan(res.depth[~ndimage.binary_dilation(organ, iterations=2)]).all()
+
+
 def test_hole_beyond_the_range_stays_empty():
     """A tunnel: the surface recedes into the hole at its centre, the farthest depth in the image."""
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
@@ -661,6 +680,18 @@ def test_range_margin_fills_a_patch_on_the_rim_of_a_hole_beyond_range():
     assert np.abs(res.depth[lamp] - tunnel[lamp]).max() < 0.05 * tunnel[lamp].min()
     kept = classify_holes(np.where(far | lamp, np.nan, tunnel), border_width=48, min_radius=24, range_margin=0)
     assert kept.beyond_range[lamp].mean() > 0.5
+
+
+def test_no_hole_is_beyond_the_range_of_a_source_without_one():
+    """A tunnel whose unseen end is a hole receding into the distance: beyond a Kinect's range (left
+    empty), but depth from CT or a renderer (sensor none) has no range to run out of: filled."""
+    v, u = np.mgrid[0:480, 0:640].astype(np.float64)
+    dist = np.hypot(v - 240, u - 320)
+    tunnel = (1.0 / (0.1 + 0.01 * dist)).astype(np.float32)
+    depth = np.where(dist <= 40, np.nan, tunnel).astype(np.float32)
+    assert np.isnan(fill_depth(depth, None, "auto").depth[dist <= 30]).all()
+    res = fill_depth(depth, None, "auto", sensor=get_sensor("none"))
+    assert np.isfinite(res.depth).all() and res.stats["beyond_range_fraction"] == 0.0
 
 
 def test_blobs_across_a_near_outline_against_the_far_end_are_filled(shared_samples):
