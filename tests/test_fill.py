@@ -682,18 +682,6 @@ def test_range_margin_fills_a_patch_on_the_rim_of_a_hole_beyond_range():
     assert kept.beyond_range[lamp].mean() > 0.5
 
 
-def test_no_hole_is_beyond_the_range_of_a_source_without_one():
-    """A tunnel whose unseen end is a hole receding into the distance: beyond a Kinect's range (left
-    empty), but depth from CT or a renderer (sensor none) has no range to run out of: filled."""
-    v, u = np.mgrid[0:480, 0:640].astype(np.float64)
-    dist = np.hypot(v - 240, u - 320)
-    tunnel = (1.0 / (0.1 + 0.01 * dist)).astype(np.float32)
-    depth = np.where(dist <= 40, np.nan, tunnel).astype(np.float32)
-    assert np.isnan(fill_depth(depth, None, "auto").depth[dist <= 30]).all()
-    res = fill_depth(depth, None, "auto", sensor=get_sensor("none"))
-    assert np.isfinite(res.depth).all() and res.stats["beyond_range_fraction"] == 0.0
-
-
 def test_blobs_across_a_near_outline_against_the_far_end_are_filled(shared_samples):
     """Random blobs on the real TUM frame (seed 120 of the benchmark's blob generator, none of its seeds)
     merge into a hole straddling the partition's outline against the far room: its rim is mostly far,

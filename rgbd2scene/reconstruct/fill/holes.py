@@ -66,8 +66,9 @@ A hole pixel is filled unless it lies *outside the captured surface*; size plays
      dropout on that rim (a ceiling lamp above the SUN corridor's unseen end) merges with the region. In
      the real SUN frame this moves the region's edge 4 px inward (5.1 % -> 4.5 % of the image); with every
      highlight of its RGB hidden, the hidden pixels taken for beyond range go from 107 to 1.
-     Only for a sensor with a range (``max_range``, ``Sensor.max_range_m``): depth from CT or a renderer,
-     or of unknown source (sensor ``none``), has no range to run out of, and its holes are filled.
+     Whatever the sensor: a source with no range in a sensor's sense still leaves regions without a
+     surface (a renderer's rays that hit nothing, a stereo matcher's search range; both sensor ``none``),
+     so the depth's own evidence decides, not the sensor setting.
      Left open: a mask that hides the edge of the surface in front of such a region (the benchmark's
      SUN frame under the TUM mask flipped up-down: a strip 13 px wide along the wall at 5.3-6.0 m that
      bounds the corridor's unseen end, 419 pixels taken for beyond range). Neither depth nor colour
@@ -184,7 +185,6 @@ def classify_holes(
     recede: float = 0.05,
     range_margin: float | None = None,
     rgb: np.ndarray | None = None,
-    max_range: float | None = None,
     colour_mix_px: float = 2.0,
 ) -> HoleMap:
     """Sort the invalid pixels of ``depth`` into band, outside and interior (module docstring).
@@ -201,9 +201,6 @@ def classify_holes(
         the shorter side / 120.
     rgb : uint8 (H, W, 3) registered colour, optional: an open pixel beside the surface whose colour is the
         surface's rather than the open region's lies on the surface (:func:`surface_by_colour`).
-    max_range : the sensor's farthest measurable depth, metres (``Sensor.max_range_m``); infinite (no range
-        limit: CT, a renderer, an unknown source) leaves no hole beyond range; None: a sensor with a range
-        limit is assumed.
     colour_mix_px : px of the open region beside the surface where the colour camera blends both colours.
 
     Returns
@@ -216,10 +213,7 @@ def classify_holes(
     rest = holes & ~band
     open_ = open_pixels(rest, valid | band, open_rays, min_edge_contact, cell=max(1, min(depth.shape) // 120))
     margin = min(depth.shape) / 120 if range_margin is None else float(range_margin)
-    if max_range is None or math.isfinite(max_range):
-        far = beyond_range(depth, valid, rest & ~open_, min_radius, far_quantile, recede, margin)
-    else:  # a source without a range limit: no surface lies beyond it
-        far = np.zeros(depth.shape, dtype=bool)
+    far = beyond_range(depth, valid, rest & ~open_, min_radius, far_quantile, recede, margin)
     if rgb is not None and open_.any():
         open_ &= ~surface_by_colour(open_, valid, rgb, colour_mix_px)
     return HoleMap(holes, band, open_, far)

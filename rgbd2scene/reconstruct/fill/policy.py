@@ -199,8 +199,7 @@ def fill_depth(
     rgb : uint8 (H, W, 3) registered colour image (colorization needs it; optional otherwise: it also tells
         a hole's pixels at a surface's outline from the open background, ``holes.surface_by_colour``).
     method : one of ``FILL_METHODS``.
-    sensor : the depth sensor (``rgbd2scene.capture.sensors``): the shadows of ``auto``, and its range: only a
-        sensor with a range leaves holes beyond it (``holes.classify_holes``).
+    sensor : the depth sensor, for the shadows of ``auto`` (``rgbd2scene.capture.sensors``).
     fx : focal length in px for the shadow widths; default 525 px * width / 640.
     border_width : widest border band in px; default 10 % of the shorter image side (48 px at 640x480).
     fill_border : False leaves the border band NaN.
@@ -237,8 +236,7 @@ def fill_depth(
     work = np.where(valid, depth, np.nan).astype(np.float32)
 
     t1 = time.perf_counter()
-    holes = classify_holes(work, border_width=border_width, min_radius=min_radius, rgb=rgb,
-                           max_range=sensor.max_range_m)
+    holes = classify_holes(work, border_width=border_width, min_radius=min_radius, rgb=rgb)
     classify_s = time.perf_counter() - t1
     todo = holes.fill if fill_border else holes.fill & ~holes.band
     band = holes.band & todo
