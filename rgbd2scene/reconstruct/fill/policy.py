@@ -58,7 +58,19 @@ What ``auto`` does
    tuned on two captures. Copies that may lie 40 % on pixels next to other holes (the earlier
    ``hole_copies`` setting), choosing every hole's fill among six candidates, gave 0.875, 11 rows: such
    a copy is half an extrapolation, where the membrane wins, not an enclosed hole (a wide ellipse on the
-   tissue sample: 1.70 times the best reference against 1.00). Highlights are not guided by colour: a hole at least
+   tissue sample: 1.70 times the best reference against 1.00). Tried in session 9 and not kept: the ring of
+   valid pixels round each hole (a quarter of its inscribed radius wide, at least 2 px) hidden and filled
+   from beyond it, the hole taking the biharmonic fill or the NYU colorization alone where that beat the
+   mean by 25 % on its ring. On the tuning holes (seeds 0-7) the ring ranks the biharmonic fill against
+   the NYU colorization as the hole itself does with a rank correlation of 0.27 where the copies above
+   give 0.05 (no information; shrunk copies 0.21, copies lying 60 % on free pixels 0.06), and the tuning
+   split went 0.761 -> 0.750, 15 -> 13 of 77 rows above 1.10, worst 1.45 -> 1.30, at the same cost (the
+   rings are small solves, the holes left out); but on the report split 21 -> 24 of 101 rows above 1.10,
+   geometric mean 0.713 -> 0.717: it fixed blobs rows (Redwood0 blobs 10 1.22 -> 0.83, Redwood3 blobs 12
+   1.73 -> 1.36, TUM blobs 10 1.40 -> 1.18) and broke as many (Redwood0 large 10 1.00 -> 1.51, Redwood0
+   blobs 11 1.13 -> 1.50, Redwood3 blobs 11 1.08 -> 1.45, TUM blobs 11 0.97 -> 1.28): too weak evidence for
+   a hard choice; on held-out seeds 20-27 of the tuning captures it changed nothing (0.782 -> 0.782, 16 ->
+   17 rows; ``benchmarks/results/fill.md``, session 9 notes). Highlights are not guided by colour: a hole at least
    half of whose pixels are bright, unsaturated and brighter than the surface around it
    (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets the smooth fill of 3. below,
    whatever its width. Its colour is the light's, not the surface's, and a uniform white patch matches
