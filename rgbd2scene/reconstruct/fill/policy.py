@@ -595,10 +595,10 @@ def choose_band(work, rgb, edge, band, border_width) -> np.ndarray:
     where the strip is empty or on a tie. Without RGB, the biharmonic or the harmonic fill.
     """
     valid = valid_depth(work)
-    seg_band = np.where(edge, band_strips(band, valid)[0], 0)
+    seg_band = np.where(edge, band_strips(band, valid, BAND_STRETCH)[0], 0)
     sc = BAND_SCALE
     small = work[::sc, ::sc]
-    seg_strip = band_strips(band[::sc, ::sc], valid[::sc, ::sc], scale=sc)[1]
+    seg_strip = band_strips(band[::sc, ::sc], valid[::sc, ::sc], BAND_STRETCH, scale=sc)[1]
     test = seg_strip > 0
     if not test.any():
         return np.zeros(work.shape, dtype=int)
