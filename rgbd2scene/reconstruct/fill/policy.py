@@ -80,45 +80,45 @@ What ``auto`` does
    white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12), hence the test against
    the hole's rim in 2.
 4. **The border band** (shadows in it excepted), chosen per stretch of 64 px along its edge by evidence
-   from the capture (:func:`choose_band`): the strip of valid depth just inside each stretch, the
-   band's own shape moved inward by its width (:func:`band_strips`), is hidden, band and strips are
-   filled from the rest with the biharmonic, the harmonic and the NYU colorization fill (one solve
-   each, at half resolution: :data:`BAND_SCALE`, clipped as below), and each stretch takes the
-   candidate of :data:`BAND_CANDIDATES` (those three and the mean of the NYU colorization and the
-   biharmonic fill) with the least error on its strip; the thin plate on a tie or where the strip is
-   empty. A band is an extrapolation, not an enclosed hole: which continuation fits (a thin plate
-   carrying the rim's slope on, a membrane levelling off where the rim is noisy, the colour where the
-   band holds another surface) is what the surface just inside it shows. The harmonic and NYU fills
-   of the band are solved from the valid depth beside the holes' solves (in the same thread pool), the
-   evidence beside :func:`choose_per_hole` (on two cores: TUM frame 0.69 -> 0.99 s wall, see the
-   results file's session 9 notes). On the tuning split (seeds 0-7, 77 rows): geometric mean 0.761 ->
-   0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM blobs 6 1.45 -> 1.16: band 14.8 -> 1.6 mm
-   against the NYU colorization's 4.3; TUM transplant 7 1.24 -> 1.02, band 99.2 -> 79.5 mm against 77.1;
-   tissue transplant 0 1.10 -> 1.01; worse: TUM transplant 1 1.05 -> 1.06, band 42.0 -> 72.4 mm where the
-   NYU fill carried a near object into the band that the strip did not show). Tried and not kept: the
-   evidence at full resolution (0.756, 16 rows, about 1 s more), the strip hidden with the band left
-   out of its solves (0.759, 16 rows), the band's harmonic and NYU fills solved only on the stretches that
-   chose them (tissue transplant 5 0.97 -> 1.26), another fill only where it beat the thin plate on the
-   strip by 20 % (0.758, 15 rows: loses TUM transplant 7's gain). The thin plate itself
-   is in the biharmonic solve of the holes of 2. and 3.
-   that take the biharmonic fill, as unknowns beside them, rather than extended afterwards from their
-   fills with the band left open while they were solved (where no hole takes it, the band is extended
-   last as for the other methods). A wide band beside a wide hole is one surface to continue: filled in
-   turn, the holes' thin plate ends free at the band and the band's then continues from that edge. On
-   the tuning split: geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM
-   transplant 0: 0.94 -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the
-   choice, 24 -> 23 of 101 rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split
-   and not kept: the band by a harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the
-   harmonic and the biharmonic fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of
-   the band's rim (0.787, 4 rows) or, per pixel, of the surface within the band's width (0.792, 4 rows),
-   and a separate biharmonic solve of band and all holes from the valid depth alone (0.786, 3 rows, one
-   more solve). Whatever the method, the band's fill is then clipped per pixel to the depth range of
-   the valid pixels within the band's width of it, widened by :data:`BAND_MARGIN` (10 %;
-   :func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards
-   the edge the thin plate carries inverse depth on towards zero (the benchmark's TUM frame under the
-   SUN mask: 18.7 m beside a far wall at 7.5 m, the worst report row). On the 8-seed tuning split only
-   TUM transplant 7 changes much (1.29 -> 1.24); without the 10 % room the tissue sample's transplanted
-   bands, whose slope does continue, lose (1.10 -> 1.21).
+   from the capture (:func:`choose_band`): the strip of valid depth just inside each stretch, the band's
+   own shape moved inward by its width (:func:`band_strips`), is hidden, band and strips are filled from
+   the rest with the biharmonic, the harmonic and the NYU colorization fill (one solve each, at half
+   resolution: :data:`BAND_SCALE`, clipped as below), and each stretch takes the candidate of
+   :data:`BAND_CANDIDATES` (those three and the mean of the NYU colorization and the biharmonic fill) with
+   the least error on its strip; the thin plate on a tie or where the strip is empty. A band is an
+   extrapolation, not an enclosed hole: which continuation fits (a thin plate carrying the rim's slope on,
+   a membrane levelling off where the rim is noisy, the colour where the band holds another surface) is
+   what the surface just inside it shows. The harmonic and NYU fills of the band are solved from the valid
+   depth beside the holes' solves (in the same thread pool), the evidence beside :func:`choose_per_hole`
+   (on two cores: TUM frame 0.69 -> 0.99 s wall, see the results file's session 9 notes). On the tuning
+   split (seeds 0-7, 77 rows): geometric mean 0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37
+   (TUM blobs 6 1.45 -> 1.16: band 14.8 -> 1.6 mm against the NYU colorization's 4.3; TUM transplant 7
+   1.24 -> 1.02, band 99.2 -> 79.5 mm against 77.1; tissue transplant 0 1.10 -> 1.01; worse: TUM
+   transplant 1 1.05 -> 1.06, band 42.0 -> 72.4 mm where the NYU fill carried a near object into the band
+   that the strip did not show). Tried and not kept: the evidence at full resolution (0.756, 16 rows,
+   about 1 s more), the strip hidden with the band left out of its solves (full resolution: 0.759, 16
+   rows), the band's harmonic and NYU fills solved only on the stretches that chose them (measured with
+   the 20 % margin below: 15 -> 19 rows, tissue transplant 5 1.05 -> 1.22), another fill only where it
+   beat the thin plate on the strip by 20 % (0.758, 15 rows: loses TUM transplant 7's gain). The thin
+   plate itself is in the biharmonic solve of the holes of 2. and 3. that take the biharmonic fill, as
+   unknowns beside them, rather than extended afterwards from their fills with the band left open while
+   they were solved (where no hole takes it, the band is extended last as for the other methods). A wide
+   band beside a wide hole is one surface to continue: filled in turn, the holes' thin plate ends free at
+   the band and the band's then continues from that edge. On the tuning split (then seeds 0-1, session 7):
+   geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM transplant 0: 0.94
+   -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the choice, 24 -> 23 of 101
+   rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split and not kept: the band by a
+   harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the harmonic and the biharmonic
+   fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of the band's rim (0.787, 4 rows)
+   or, per pixel, of the surface within the band's width (0.792, 4 rows), and a separate biharmonic solve
+   of band and all holes from the valid depth alone (0.786, 3 rows, one more solve). Whatever the method,
+   the band's fill is then clipped per pixel to the depth range of the valid pixels within the band's
+   width of it, widened by :data:`BAND_MARGIN` (10 %;
+   :func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards the
+   edge the thin plate carries inverse depth on towards zero (the benchmark's TUM frame under the SUN
+   mask: 18.7 m beside a far wall at 7.5 m, the worst report row). On the 8-seed tuning split only TUM
+   transplant 7 changes much (1.29 -> 1.24); without the 10 % room the tissue sample's transplanted bands,
+   whose slope does continue, lose (1.10 -> 1.21).
 ``FillResult.method`` names the base fills used, e.g. ``"auto: background+biharmonic+nyu_colorization"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two
 counts for both).
