@@ -89,15 +89,17 @@ What ``auto`` does
    extrapolation, not an enclosed hole: which continuation fits (a thin plate carrying the rim's slope on,
    a membrane levelling off where the rim is noisy, the colour where the band holds another surface) is
    what the surface just inside it shows. The harmonic and NYU fills of the band are solved from the valid
-   depth beside the holes' solves (in the same thread pool), the evidence beside :func:`choose_per_hole`
-   (on two cores: TUM frame 0.69 -> 0.99 s wall, see the results file's session 9 notes). On the tuning
-   split (seeds 0-7, 77 rows): geometric mean 0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37
-   (TUM blobs 6 1.45 -> 1.16: band 14.8 -> 1.6 mm against the NYU colorization's 4.3; TUM transplant 7
-   1.24 -> 1.02, band 99.2 -> 79.5 mm against 77.1; tissue transplant 0 1.10 -> 1.01; worse: TUM
-   transplant 1 1.05 -> 1.06, band 42.0 -> 72.4 mm where the NYU fill carried a near object into the band
-   that the strip did not show). Tried and not kept: the evidence at full resolution (0.756, 16 rows,
-   about 1 s more), the strip hidden with the band left out of its solves (full resolution: 0.759, 16
-   rows), the band's harmonic and NYU fills solved only on the stretches that chose them (measured with
+   depth beside the holes' solves (in the same thread pool), the NYU one only on the stretches that take
+   it and the band within half a stretch of them (32 px; on the whole band: the same figures within 0.001,
+   0.1 s more), the evidence beside :func:`choose_per_hole` (on two cores: TUM frame about 0.7 -> 1.0 s
+   wall, see the results file's session 9 notes). On the tuning split (seeds 0-7, 77 rows): geometric mean
+   0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM blobs 6 1.45 -> 1.16: band 14.8 ->
+   1.6 mm against the NYU colorization's 4.3; TUM transplant 7 1.24 -> 1.02, band 99.2 -> 79.7 mm against
+   77.1; tissue transplant 0 1.10 -> 1.01; worse: tissue transplant 1 1.02 -> 1.05, TUM transplant 1 1.05
+   -> 1.06, band 42.0 -> 74.9 mm where the NYU fill carried a near object into the band that the strip did
+   not show). Tried and not kept: the evidence at full resolution (0.756, 16 rows, about 1 s more), the
+   strip hidden with the band left out of its solves (full resolution: 0.759, 16 rows), the band's
+   harmonic and NYU fills solved only on the stretches that chose them, nothing beside them (measured with
    the 20 % margin below: 15 -> 19 rows, tissue transplant 5 1.05 -> 1.22), another fill only where it
    beat the thin plate on the strip by 20 % (0.758, 15 rows: loses TUM transplant 7's gain). The thin
    plate itself is in the biharmonic solve of the holes of 2. and 3. that take the biharmonic fill, as
@@ -368,7 +370,11 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         jobs["biharmonic"] = (rest | edge, across)
     ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
     for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
-        jobs[f"band:{b}"] = (edge, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
+        where = edge
+        if b == "nyu_colorization":  # the costly solve: only where taken, with half a stretch beside it
+            taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
+            where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= BAND_STRETCH // 2)
+        jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
     fills = _base_fills(out, rgb, jobs)
     if joint:
         out[edge] = fills["biharmonic"][edge]
