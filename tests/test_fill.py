@@ -25,7 +25,7 @@ from rgbd2scene.reconstruct.fill import (
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
-from rgbd2scene.reconstruct.fill.policy import NAMES, HoleTraits, choose_per_hole
+from rgbd2scene.reconstruct.fill.policy import BAND_STRETCH, NAMES, HoleTraits, band_strips, choose_per_hole
 from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
@@ -419,6 +419,51 @@ def test_auto_fills_the_band_in_the_same_thin_plate_as_the_holes_beside_it():
     joint = fill_biharmonic(depth, band | hole)  # one solve (filled in turn: 1.4 mm apart at most)
     np.testing.assert_allclose(res.depth[band | hole], joint[band | hole], rtol=1e-6)
     assert np.abs(res.depth[band] - truth[band]).max() < 0.03
+
+
+def test_band_strips_are_the_band_moved_inward_by_its_width_in_stretches_along_the_edge():
+    """Each row of a left band (and each column of a top band) has its strip just inside it, as long as
+    the band's run there, on valid pixels only; stretches of ``BAND_STRETCH`` px along each edge."""
+    h, w = 2 * BAND_STRETCH + 10, 100
+    valid = np.ones((h, w), bool)
+    band = np.zeros((h, w), bool)
+    run = np.where(np.arange(h) < h // 2, 5, 9)
+    band[np.arange(w)[None, :] < run[:, None]] = True
+    valid[band] = False
+    valid[3, 12] = False  # a hole in a strip: no strip pixel there
+    seg_band, seg_strip = band_strips(band, valid)
+    assert np.array_equal(seg_band > 0, band)
+    expected = (np.arange(w)[None, :] >= run[:, None]) & (np.arange(w)[None, :] < 2 * run[:, None]) & valid
+    assert np.array_equal(seg_strip > 0, expected)
+    rows = np.nonzero(band.any(axis=1))[0]
+    stretch = seg_band[rows, 0]
+    assert len(np.unique(stretch)) == 3 and (np.diff(stretch) >= 0).all()
+    assert (stretch[:BAND_STRETCH] == stretch[0]).all() and stretch[BAND_STRETCH] != stretch[0]
+    for r in (0, BAND_STRETCH, h - 1):  # a row's strip belongs to its band's stretch
+        assert set(np.unique(seg_strip[r][seg_strip[r] > 0])) == {seg_band[r, 0]}
+    top, _ = band_strips(band.T.copy(), valid.T.copy())
+    assert np.array_equal(top > 0, band.T)
+
+
+def test_auto_chooses_the_bands_fill_per_stretch_on_the_strip_inside_it():
+    """A band beside noisy level depth takes the harmonic fill (a thin plate carries the rim's noise on as a
+    slope), and beside a smooth slanted plane the thin plate (a membrane levels off): each stretch of the
+    edge as the valid strip just inside it predicts, not one rule for the whole band."""
+    h, w = 240, 320
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:h, 0:w]
+    noisy = y < 2 * BAND_STRETCH
+    truth = np.where(noisy, 2.0 + rng.normal(0, 0.03, (h, w)), 1.0 / (0.5 + 0.002 * (x - 12))).astype(np.float32)
+    depth = truth.copy()
+    band = x < 12
+    depth[band | ((y - 60) ** 2 + (x - 200) ** 2 <= 25)] = np.nan
+    res = fill_depth(depth, None, "auto")
+    assert res.parts["band"][band].all()
+    err = {name: np.abs(f - truth) for name, f in (("auto", res.depth), ("biharmonic", fill_biharmonic(depth)),
+                                                    ("harmonic", fill_harmonic(depth)))}
+    level, slant = band & noisy, band & ~noisy
+    assert err["auto"][level].mean() < 1.05 * err["harmonic"][level].mean() < 0.6 * err["biharmonic"][level].mean()
+    assert err["auto"][slant].mean() < 0.5 * err["harmonic"][slant].mean()
 
 
 def test_border_band_is_filled_when_narrow():

@@ -10,7 +10,8 @@ Interior holes are filled by the method; then the sensor's border band (and any 
 separates from the surface) by a biharmonic fill from the surface and the filled interior, which
 continues the surface's slope to the image edge, bounded near the surface's depth range (4. below;
 ``fill_border=False`` leaves the band NaN); ``auto``
-fills the band in the same thin-plate solve as the holes it gives the biharmonic fill (4. below). On the
+fills the band in the same thin-plate solve as the holes it gives the biharmonic fill, or, stretch by
+stretch, with the fill that predicted the valid strip just inside it best (4. below). On the
 bundled sample's own 8 px band it is about as good as a harmonic fill (0.83 mm against 0.78 mm; copying
 the nearest depth: 1.48 mm), and on the wider bands of real masks laid onto other captures (tune split
 of the benchmark) clearly better: worst transplanted row 1.15 times the best plain solver, not 1.51.
@@ -90,25 +91,48 @@ What ``auto`` does
    guidance for holes whose pixels are merely bright and unsaturated: on a report run it also took the
    white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12), hence the test against
    the hole's rim in 2.
-4. **The border band** (shadows in it excepted) is in the biharmonic solve of the holes of 2. and 3.
-   that take the biharmonic fill, as unknowns beside them, rather than extended afterwards from their
-   fills with the band left open while they were solved (where no hole takes it, the band is extended
-   last as for the other methods). A wide band beside a wide hole is one surface to continue: filled in
-   turn, the holes' thin plate ends free at the band and the band's then continues from that edge. On
-   the tuning split: geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM
-   transplant 0: 0.94 -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the
-   choice, 24 -> 23 of 101 rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split
-   and not kept: the band by a harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the
-   harmonic and the biharmonic fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of
-   the band's rim (0.787, 4 rows) or, per pixel, of the surface within the band's width (0.792, 4 rows),
-   and a separate biharmonic solve of band and all holes from the valid depth alone (0.786, 3 rows, one
-   more solve). Whatever the method, the band's fill is then clipped per pixel to the depth range of
-   the valid pixels within the band's width of it, widened by :data:`BAND_MARGIN` (10 %;
-   :func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards
-   the edge the thin plate carries inverse depth on towards zero (the benchmark's TUM frame under the
-   SUN mask: 18.7 m beside a far wall at 7.5 m, the worst report row). On the 8-seed tuning split only
-   TUM transplant 7 changes much (1.29 -> 1.24); without the 10 % room the tissue sample's transplanted
-   bands, whose slope does continue, lose (1.10 -> 1.21).
+4. **The border band** (shadows in it excepted), chosen per stretch of 64 px along its edge by evidence
+   from the capture (:func:`choose_band`): the strip of valid depth just inside each stretch, the band's
+   own shape moved inward by its width (:func:`band_strips`), is hidden, band and strips are filled from
+   the rest with the biharmonic, the harmonic and the NYU colorization fill (one solve each, at half
+   resolution: :data:`BAND_SCALE`, clipped as below), and each stretch takes the candidate of
+   :data:`BAND_CANDIDATES` (those three and the mean of the NYU colorization and the biharmonic fill) with
+   the least error on its strip; the thin plate on a tie or where the strip is empty. A band is an
+   extrapolation, not an enclosed hole: which continuation fits (a thin plate carrying the rim's slope on,
+   a membrane levelling off where the rim is noisy, the colour where the band holds another surface) is
+   what the surface just inside it shows. The harmonic and NYU fills of the band are solved from the valid
+   depth beside the holes' solves (in the same thread pool), the NYU one only on the stretches that take
+   it and the band within half a stretch of them (32 px; on the whole band: the same figures within 0.001,
+   0.1 s more), the evidence beside :func:`choose_per_hole` (on two cores: TUM frame about 0.7 -> 1.0 s
+   wall, see the results file's session 9 notes). On the tuning split (seeds 0-7, 77 rows): geometric mean
+   0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM blobs 6 1.45 -> 1.16: band 14.8 ->
+   1.6 mm against the NYU colorization's 4.3; TUM transplant 7 1.24 -> 1.02, band 99.2 -> 79.7 mm against
+   77.1; tissue transplant 0 1.10 -> 1.01; worse: tissue transplant 1 1.02 -> 1.05, TUM transplant 1 1.05
+   -> 1.06, band 42.0 -> 74.9 mm where the NYU fill carried a near object into the band that the strip did
+   not show). Tried and not kept: the evidence at full resolution (0.756, 16 rows, about 1 s more), the
+   strip hidden with the band left out of its solves (full resolution: 0.759, 16 rows), the band's
+   harmonic and NYU fills solved only on the stretches that chose them, nothing beside them (measured with
+   the 20 % margin below: 15 -> 19 rows, tissue transplant 5 1.05 -> 1.22), another fill only where it
+   beat the thin plate on the strip by 20 % (0.758, 15 rows: loses TUM transplant 7's gain). The thin
+   plate itself is in the biharmonic solve of the holes of 2. and 3. that take the biharmonic fill, as
+   unknowns beside them, rather than extended afterwards from their fills with the band left open while
+   they were solved (where no hole takes it, the band is extended last as for the other methods). A wide
+   band beside a wide hole is one surface to continue: filled in turn, the holes' thin plate ends free at
+   the band and the band's then continues from that edge. On the tuning split (then seeds 0-1, session 7):
+   geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM transplant 0: 0.94
+   -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the choice, 24 -> 23 of 101
+   rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split and not kept: the band by a
+   harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the harmonic and the biharmonic
+   fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of the band's rim (0.787, 4 rows)
+   or, per pixel, of the surface within the band's width (0.792, 4 rows), and a separate biharmonic solve
+   of band and all holes from the valid depth alone (0.786, 3 rows, one more solve). Whatever the method,
+   the band's fill is then clipped per pixel to the depth range of the valid pixels within the band's
+   width of it, widened by :data:`BAND_MARGIN` (10 %;
+   :func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards the
+   edge the thin plate carries inverse depth on towards zero (the benchmark's TUM frame under the SUN
+   mask: 18.7 m beside a far wall at 7.5 m, the worst report row). On the 8-seed tuning split only TUM
+   transplant 7 changes much (1.29 -> 1.24); without the 10 % room the tissue sample's transplanted bands,
+   whose slope does continue, lose (1.10 -> 1.21).
 ``FillResult.method`` names the base fills used, e.g. ``"auto: background+biharmonic+nyu_colorization"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two
 counts for both).
@@ -175,8 +199,8 @@ class FillResult:
     parts : bool (H, W) masks of the pixels each step filled: ``"shadow"`` (``auto``'s occlusion shadow
         runs: the shadows filled from their far end, the rim dropouts beyond them from the near end),
         ``"holes"`` (the interior holes, by the method or ``auto``'s choice per hole) and ``"band"`` (the
-        border band and the holes only it separates from the surface: in the thin plate of the holes
-        beside it, or extended from the surface afterwards).
+        border band and the holes only it separates from the surface: by ``auto``'s choice per stretch of
+        the band, in the thin plate of the holes beside it, or extended from the surface afterwards).
     """
 
     depth: np.ndarray
@@ -271,7 +295,7 @@ def fill_depth(
         out = fill_background(work, interior, step=step)
     else:
         out, counts, shadow = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius,
-                                    copies)
+                                    copies, border_width)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
@@ -306,9 +330,11 @@ def fill_depth(
     return FillResult(out.astype(np.float32), filled, used, settings, stats, parts)
 
 
-def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
+def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, border_width):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; every other interior
-    hole -> the fill :func:`choose_per_hole` picks for it. The rest of the band is left to the caller.
+    hole -> the fill :func:`choose_per_hole` picks for it; the band -> per stretch the fill
+    :func:`choose_band` picks (the thin plate where the holes' solve holds it). The rest of the band is
+    left to the caller.
 
     Returns the filled depth, the number of pixels each fill filled and the shadow pixels.
     """
@@ -342,16 +368,26 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
         pixels = np.bincount(labels.ravel(), minlength=n + 1)
         lit = 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) >= pixels
         lit[0] = False
-    choice = choose_per_hole(out, rgb, labels, HoleTraits(stepped, wide, lit), copies)
+    edge = band & ~shadow
+    with ThreadPoolExecutor(max_workers=1) as pool:  # the band's evidence beside the holes' (on two cores)
+        band_ways = pool.submit(choose_band, work, rgb, edge, band, border_width) if edge.any() else None
+        choice = choose_per_hole(out, rgb, labels, HoleTraits(stepped, wide, lit), copies)
+        ways = np.zeros(work.shape, dtype=int) if band_ways is None else band_ways.result()
     per_pixel = choice[labels]
     chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
     needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
     across = stepped[labels] & rest
     jobs = {name: (rest, across) for name in sorted(needed)}
-    edge = band & ~shadow
     joint = "biharmonic" in jobs and edge.any()
     if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
         jobs["biharmonic"] = (rest | edge, across)
+    ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
+    for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
+        where = edge
+        if b == "nyu_colorization":  # the costly solve: only where taken, with half a stretch beside it
+            taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
+            where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= BAND_STRETCH // 2)
+        jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
     fills = _base_fills(out, rgb, jobs)
     if joint:
         out[edge] = fills["biharmonic"][edge]
@@ -359,6 +395,14 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies):
         sel = rest & (per_pixel == k)
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
+            counts[b] = counts.get(b, 0) + int(sel.sum())
+    for k in ways_used:  # the band's stretches that their strips gave another fill than the thin plate
+        sel = ways == k
+        parts = BAND_CANDIDATES[BAND_NAMES[k]]
+        if "biharmonic" in parts:  # the joint thin plate, else one of the band alone
+            fills["band:biharmonic"] = fills["biharmonic"] if joint else fill_biharmonic(out, sel)
+        out[sel] = np.mean([fills["band:" + b][sel] for b in parts], axis=0)
+        for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts, shadow
 
@@ -401,14 +445,16 @@ def _base_fill(name: str, depth, rgb, mask, across) -> np.ndarray:
 
 
 def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Each named base fill (:func:`_base_fill`) of its ``(mask, across)`` in ``jobs``, the solves side by side
+    """Each named base fill (:func:`_base_fill`; a name ``"band:<fill>"`` runs ``<fill>``: the band's own solve
+    beside the holes') of its ``(mask, across)`` in ``jobs``, the solves side by side
     in threads, each on one BLAS thread (:mod:`rgbd2scene.blas`): the sparse solvers release the GIL, so on two
     cores they overlap (TUM frame: the fill 0.70 s wall instead of 1.0 s); each result is the same."""
     with single_blas_thread():
         if len(jobs) < 2:
-            return {name: _base_fill(name, depth, rgb, *job) for name, job in jobs.items()}
+            return {name: _base_fill(name.removeprefix("band:"), depth, rgb, *job) for name, job in jobs.items()}
         with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
-            futures = {name: pool.submit(_base_fill, name, depth, rgb, *job) for name, job in jobs.items()}
+            futures = {name: pool.submit(_base_fill, name.removeprefix("band:"), depth, rgb, *job)
+                       for name, job in jobs.items()}
             return {name: future.result() for name, future in futures.items()}
 
 
@@ -492,3 +538,104 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     own = guided & (npx > 0) & np.isfinite(err[:, ways[0]])
     choice[own] = np.asarray(ways)[err[np.ix_(own, ways)].argmin(axis=1)]  # argmin keeps the first on a tie
     return choice
+
+
+#: What the border band chooses from per stretch of an edge (:func:`choose_band`; the default, the thin plate, first).
+BAND_CANDIDATES: dict[str, tuple[str, ...]] = {
+    "biharmonic": ("biharmonic",),
+    "harmonic": ("harmonic",),
+    "nyu_colorization": ("nyu_colorization",),
+    "nyu_colorization+biharmonic": ("nyu_colorization", "biharmonic"),
+}
+BAND_NAMES = list(BAND_CANDIDATES)
+#: The border band chooses its fill per stretch of this many px along its edge (:func:`choose_band`).
+BAND_STRETCH = 64
+#: The band's evidence is solved at 1 / this resolution: at full resolution it chose about as well on the tuning split
+#: (geometric mean 0.756 against 0.755, measured with the band's fills solved after the holes') and cost 1 s more.
+BAND_SCALE = 2
+
+
+def _edge_view(a: np.ndarray, transpose: bool, flip: bool) -> np.ndarray:
+    a = a.T if transpose else a
+    return a[:, ::-1] if flip else a
+
+
+def band_strips(band: np.ndarray, valid: np.ndarray, stretch: int = BAND_STRETCH,
+                scale: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The border band's stretches and, for each, the strip of valid depth just inside it.
+
+    Along each edge, each row (left and right edges) or column (top and bottom) of the band is a run of
+    band pixels from the edge; its strip is the same run shifted inward by its own length (the band's
+    shape moved inward by its width), on the valid pixels there. Runs are grouped into stretches of
+    ``stretch`` px along the edge; a corner pixel belongs to the first edge that claims it.
+
+    Parameters
+    ----------
+    band : bool (H, W) the border band.
+    valid : bool (H, W) valid depth.
+    stretch : px along an edge, at full resolution.
+    scale : the arrays are 1 / ``scale`` of the full resolution: the stretches are numbered as at full
+        resolution (so that a strip found at half resolution names its band's stretch at full resolution;
+        exact where the image's sides are multiples of ``scale``).
+
+    Returns
+    -------
+    int (H, W) the stretch of each band pixel (0: none) and int (H, W) the stretch whose strip each
+    valid pixel lies in (0: none).
+    """
+    seg_band = np.zeros(band.shape, dtype=np.int32)
+    seg_strip = np.zeros(band.shape, dtype=np.int32)
+    label = 0
+    for flip in (False, True):
+        for transpose in (False, True):
+            # the edge at column 0 of each row; views, so that writes go through
+            b, v, sb, ss = (_edge_view(a, transpose, flip) for a in (band, valid, seg_band, seg_strip))
+            n, m = b.shape
+            run = np.where((~b).any(axis=1), (~b).argmax(axis=1), m)
+            col = np.arange(m)[None, :]
+            cells = col < run[:, None]
+            strip = (col >= run[:, None]) & (col < 2 * run[:, None]) & v & ~b & (ss == 0)
+            ids = label + 1 + (np.arange(n) * scale) // stretch
+            sb[cells & (sb == 0)] = np.broadcast_to(ids[:, None], cells.shape)[cells & (sb == 0)]
+            ss[strip] = np.broadcast_to(ids[:, None], strip.shape)[strip]
+            label += -(-(n * scale) // stretch)
+    return seg_band, seg_strip
+
+
+def choose_band(work, rgb, edge, band, border_width) -> np.ndarray:
+    """Per pixel of ``edge`` (the band to fill), the index in :data:`BAND_NAMES` of its fill, chosen per
+    stretch of its edge by evidence from the capture (module docstring, 4.).
+
+    The strip of valid depth just inside each stretch (:func:`band_strips`) is hidden, and band and
+    strips are filled from the rest of the valid depth with each base fill (one solve each, at half
+    resolution, :data:`BAND_SCALE`), bounded as the band is
+    (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`); each stretch takes the candidate of
+    :data:`BAND_CANDIDATES` with the least absolute error on its strip, the biharmonic fill (index 0)
+    where the strip is empty or on a tie. Without RGB, the biharmonic or the harmonic fill.
+    """
+    valid = valid_depth(work)
+    seg_band = np.where(edge, band_strips(band, valid, BAND_STRETCH)[0], 0)
+    sc = BAND_SCALE
+    small = work[::sc, ::sc]
+    seg_strip = band_strips(band[::sc, ::sc], valid[::sc, ::sc], BAND_STRETCH, scale=sc)[1]
+    test = seg_strip > 0
+    if not test.any():
+        return np.zeros(work.shape, dtype=int)
+    names = BAND_NAMES if rgb is not None else BAND_NAMES[:2]
+    bases = sorted({b for k in names for b in BAND_CANDIDATES[k]})
+    trial = np.where(test, np.nan, small).astype(np.float32)
+    unknown = edge[::sc, ::sc] | test
+    jobs = {b: (unknown, np.zeros(small.shape, dtype=bool)) for b in bases}
+    fills = _base_fills(trial, None if rgb is None else rgb[::sc, ::sc], jobs)
+    fills = {b: clip_to_surround(f, trial, unknown, border_width // sc, BAND_MARGIN) for b, f in fills.items()}
+    truth = small[test].astype(np.float64)
+    owner = seg_strip[test]
+    miss = np.abs(truth - float(np.nanmedian(work)))  # the error of a strip pixel left unfilled
+    n = int(max(seg_band.max(), seg_strip.max())) + 1
+    err = np.zeros((n, len(names)))
+    for k, name in enumerate(names):
+        est = np.mean([fills[b][test] for b in BAND_CANDIDATES[name]], axis=0).astype(np.float64)
+        err[:, k] = np.bincount(owner, weights=np.where(np.isfinite(est), np.abs(est - truth), miss), minlength=n)
+    choice = err.argmin(axis=1)  # argmin keeps the first (biharmonic) on a tie and where no strip was scored
+    choice[0] = 0
+    return choice[seg_band]
