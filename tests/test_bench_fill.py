@@ -1,4 +1,5 @@
-"""The hole-filling benchmark's masks: the report split's transplanted masks are none of the tuning split's."""
+"""The hole-filling benchmark's masks: the report and held-out splits' transplanted masks are none of the tuning
+split's, and the held-out split's none of the report split's."""
 
 from __future__ import annotations
 
@@ -22,24 +23,32 @@ def _bench():
 def test_report_draws_no_source_and_flip_a_tuning_seed_draws_on_a_tuning_capture():
     bench = _bench()
     sources = ["nyu", "sun", "redwood0", "tissue"]
-    tuned = {bench.transplant_draw("tum", s, sources) for s in bench.TUNE_SEEDS}
-    report = [bench.transplant_draw("tum", s, sources, disjoint=True) for s in bench.SPLITS["report"]["seeds"]]
+    tuned = {bench.transplant_draw("tum", s, sources) for s in bench.SPLITS["tune"]["seeds"]}
+    report = [bench.transplant_draw("tum", s, sources, ("tune",)) for s in bench.SPLITS["report"]["seeds"]]
     assert not tuned & set(report)
+    heldout = [bench.transplant_draw("tum", s, sources, ("tune", "report")) for s in bench.SPLITS["heldout"]["seeds"]]
+    assert not (tuned | set(report)) & set(heldout)
+    assert len(set(heldout)) > 1
     old = [bench.transplant_draw("tum", s, sources) for s in bench.SPLITS["report"]["seeds"]]
     assert tuned & set(old)  # what it is for: unrestricted, report TUM 11 and 12 were tuning TUM 1, 2 and 4
     # a capture outside the tuning split draws as before
-    assert [bench.transplant_draw("sun", s, sources, disjoint=True) for s in (10, 11, 12)] == [
+    assert [bench.transplant_draw("sun", s, sources, ("tune",)) for s in (10, 11, 12)] == [
         bench.transplant_draw("sun", s, sources) for s in (10, 11, 12)]
 
 
-def test_no_report_transplant_mask_is_a_tuning_mask(shared_samples):
+def test_no_report_or_heldout_transplant_mask_is_a_tuning_mask_nor_a_heldout_one_a_report_one(shared_samples):
     bench = _bench()
     everything = bench.load_captures()
     caps = [c for c in everything if c.name in bench.SPLITS["tune"]["captures"]]
     sources = bench.hole_masks(everything)
-    tune = bench.build_cases(caps, ("transplant",), bench.TUNE_SEEDS, sources)
-    report = bench.build_cases(caps, ("transplant",), bench.SPLITS["report"]["seeds"], sources,
-                               disjoint=bench.SPLITS["report"]["disjoint"])
-    assert len(report) == 3 * len(caps)
-    assert not [(t["capture"].name, t["seed"], r["seed"]) for t in tune for r in report if t["capture"] is r["capture"]
-                and np.array_equal(t["scored"]["transplant"], r["scored"]["transplant"])]
+    split = {name: bench.build_cases(caps, ("transplant",), bench.SPLITS[name]["seeds"], sources,
+                                     avoid=bench.SPLITS[name]["avoid"]) for name in ("tune", "report", "heldout")}
+    assert len(split["report"]) == 3 * len(caps)
+
+    def same(a, b):
+        return [(x["capture"].name, x["seed"], y["seed"]) for x in split[a] for y in split[b] if x["capture"] is
+                y["capture"] and np.array_equal(x["scored"]["transplant"], y["scored"]["transplant"])]
+
+    assert not same("tune", "report")
+    assert not same("tune", "heldout")
+    assert not same("report", "heldout")
