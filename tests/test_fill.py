@@ -26,7 +26,7 @@ from rgbd2scene.reconstruct.fill import (
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
 from rgbd2scene.reconstruct.fill.policy import BAND_STRETCH, NAMES, HoleTraits, band_strips, choose_per_hole
-from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround
+from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround, nyu_affinities
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -853,6 +853,20 @@ def test_nyu_colorization_equals_a_dense_solve_of_the_toolbox_system():
     # the soft data term moves the known pixels in the toolbox's solution: a solve with them fixed differs
     assert np.abs(ref[~holes] - depth[~holes]).max() > 1e-3
     assert np.abs(fill_colorization(depth.astype(np.float32), rgb8)[holes] - ref[holes]).max() > 1e-3
+
+
+def test_nyu_affinities_at_chosen_pixels_are_those_of_the_whole_image_to_the_bit():
+    rng = np.random.default_rng(3)
+    grey = rng.random((40, 50))
+    grey[10:20, 10:30] = 0.5  # a flat patch: the 2e-6 floor of sigma
+    nodes = rng.random(grey.shape) < 0.7
+    nodes[0, :] = True  # the image's edge in the graph
+    full = nyu_affinities(grey, nodes)
+    rows, cols = np.nonzero(nodes)
+    part = nyu_affinities(grey, nodes, at=(rows, cols))
+    assert part.shape == (8, rows.size)
+    assert np.array_equal(part, full[:, rows, cols])
+    assert np.allclose(part.sum(axis=0)[part.sum(axis=0) > 0], 1.0)
 
 
 def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harmonic():
