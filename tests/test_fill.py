@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -25,7 +26,14 @@ from rgbd2scene.reconstruct.fill import (
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
-from rgbd2scene.reconstruct.fill.policy import BAND_STRETCH, NAMES, HoleTraits, band_strips, choose_per_hole
+from rgbd2scene.reconstruct.fill.policy import (
+    BAND_STRETCH,
+    NAMES,
+    HoleTraits,
+    _base_fills,
+    band_strips,
+    choose_per_hole,
+)
 from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround, nyu_affinities
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
@@ -902,6 +910,23 @@ def test_nyu_colorization_leaves_other_invalid_pixels_out_and_keeps_unreachable_
     assert np.abs(out[hole] - truth[hole]).mean() < 0.005
     alone = np.full((H, W), np.nan, np.float32)
     assert np.isnan(fill_nyu_colorization(alone, rgb)).all()
+
+
+def test_base_fills_in_a_shared_pool_are_those_of_their_own_threads_to_the_bit():
+    truth = smooth_surface()
+    rgb = texture_rgb(truth)
+    holes = blobs(7, n=5, r=6) | disc(60, 90, 12)
+    depth = np.where(holes, np.nan, truth).astype(np.float32)
+    across = disc(60, 90, 12)
+    jobs = {"harmonic": (holes, across), "biharmonic": (holes, across), "nyu_colorization": (holes, across),
+            "band:harmonic": (disc(60, 90, 12), np.zeros_like(holes))}
+    own = _base_fills(depth, rgb, jobs)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        shared = _base_fills(depth, rgb, jobs, pool)
+    assert list(shared) == list(jobs)
+    for name in jobs:
+        np.testing.assert_array_equal(shared[name], own[name])
+        assert np.isfinite(shared[name][jobs[name][0]]).all()
 
 
 def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_ones_take():
