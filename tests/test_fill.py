@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -25,8 +26,15 @@ from rgbd2scene.reconstruct.fill import (
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
-from rgbd2scene.reconstruct.fill.policy import BAND_STRETCH, NAMES, HoleTraits, band_strips, choose_per_hole
-from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround
+from rgbd2scene.reconstruct.fill.policy import (
+    BAND_STRETCH,
+    NAMES,
+    HoleTraits,
+    _base_fills,
+    band_strips,
+    choose_per_hole,
+)
+from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround, nyu_affinities
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -855,6 +863,20 @@ def test_nyu_colorization_equals_a_dense_solve_of_the_toolbox_system():
     assert np.abs(fill_colorization(depth.astype(np.float32), rgb8)[holes] - ref[holes]).max() > 1e-3
 
 
+def test_nyu_affinities_at_chosen_pixels_are_those_of_the_whole_image_to_the_bit():
+    rng = np.random.default_rng(3)
+    grey = rng.random((40, 50))
+    grey[10:20, 10:30] = 0.5  # a flat patch: the 2e-6 floor of sigma
+    nodes = rng.random(grey.shape) < 0.7
+    nodes[0, :] = True  # the image's edge in the graph
+    full = nyu_affinities(grey, nodes)
+    rows, cols = np.nonzero(nodes)
+    part = nyu_affinities(grey, nodes, at=(rows, cols))
+    assert part.shape == (8, rows.size)
+    assert np.array_equal(part, full[:, rows, cols])
+    assert np.allclose(part.sum(axis=0)[part.sum(axis=0) > 0], 1.0)
+
+
 def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harmonic():
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     left = u < 80
@@ -888,6 +910,23 @@ def test_nyu_colorization_leaves_other_invalid_pixels_out_and_keeps_unreachable_
     assert np.abs(out[hole] - truth[hole]).mean() < 0.005
     alone = np.full((H, W), np.nan, np.float32)
     assert np.isnan(fill_nyu_colorization(alone, rgb)).all()
+
+
+def test_base_fills_in_a_shared_pool_are_those_of_their_own_threads_to_the_bit():
+    truth = smooth_surface()
+    rgb = texture_rgb(truth)
+    holes = blobs(7, n=5, r=6) | disc(60, 90, 12)
+    depth = np.where(holes, np.nan, truth).astype(np.float32)
+    across = disc(60, 90, 12)
+    jobs = {"harmonic": (holes, across), "biharmonic": (holes, across), "nyu_colorization": (holes, across),
+            "band:harmonic": (disc(60, 90, 12), np.zeros_like(holes))}
+    own = _base_fills(depth, rgb, jobs)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        shared = _base_fills(depth, rgb, jobs, pool)
+    assert list(shared) == list(jobs)
+    for name in jobs:
+        np.testing.assert_array_equal(shared[name], own[name])
+        assert np.isfinite(shared[name][jobs[name][0]]).all()
 
 
 def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_ones_take():

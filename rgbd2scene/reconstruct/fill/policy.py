@@ -104,7 +104,9 @@ What ``auto`` does
    depth beside the holes' solves (in the same thread pool), the NYU one only on the stretches that take
    it and the band within half a stretch of them (32 px; on the whole band: the same figures within 0.001,
    0.1 s more), the evidence beside :func:`choose_per_hole` (on two cores: TUM frame about 0.7 -> 1.0 s
-   wall, see the results file's session 9 notes). On the tuning split (seeds 0-7, 77 rows): geometric mean
+   wall, see the results file's session 9 notes; all of ``auto``'s solves queued in one pool of a thread per
+   core, the thin plate and the holes' NYU fill started ahead of the evidence: about 0.75 s again, the
+   same output). On the tuning split (seeds 0-7, 77 rows): geometric mean
    0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM blobs 6 1.45 -> 1.16: band 14.8 ->
    1.6 mm against the NYU colorization's 4.3; TUM transplant 7 1.24 -> 1.02, band 99.2 -> 79.7 mm against
    77.1; tissue transplant 0 1.10 -> 1.01; worse: tissue transplant 1 1.02 -> 1.05, TUM transplant 1 1.05
@@ -140,8 +142,9 @@ counts for both).
 
 from __future__ import annotations
 
+import os
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -369,26 +372,45 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         lit = 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) >= pixels
         lit[0] = False
     edge = band & ~shadow
-    with ThreadPoolExecutor(max_workers=1) as pool:  # the band's evidence beside the holes' (on two cores)
-        band_ways = pool.submit(choose_band, work, rgb, edge, band, border_width) if edge.any() else None
-        choice = choose_per_hole(out, rgb, labels, HoleTraits(stepped, wide, lit), copies)
-        ways = np.zeros(work.shape, dtype=int) if band_ways is None else band_ways.result()
-    per_pixel = choice[labels]
-    chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
-    needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
     across = stepped[labels] & rest
-    jobs = {name: (rest, across) for name in sorted(needed)}
-    joint = "biharmonic" in jobs and edge.any()
-    if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
-        jobs["biharmonic"] = (rest | edge, across)
-    ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
-    for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
-        where = edge
-        if b == "nyu_colorization":  # the costly solve: only where taken, with half a stretch beside it
-            taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
-            where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= BAND_STRETCH // 2)
-        jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
-    fills = _base_fills(out, rgb, jobs)
+    traits = HoleTraits(stepped, wide, lit)
+    # the thin plate of holes and band and the holes' NYU colorization are the longest solves (TUM frame: 0.45 and
+    # 0.25 of 1.3 s CPU), and their inputs are known before any evidence: they start first, beside the evidence's
+    # solves, where the rule's own choice (before the evidence) takes them (a guided hole's mean; the thin plate
+    # for a wide hole without RGB); a result is used only if the evidence keeps its fill
+    guided = (wide & ~lit)[1:].any()
+    ahead = {"biharmonic": (rest | edge, across)} if guided else {}
+    if guided and rgb is not None:
+        ahead["nyu_colorization"] = (rest, across)
+    with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
+            ThreadPoolExecutor(max_workers=1) as side:
+        early = _submit_fills(solves, out, rgb, ahead)
+        band_ways = side.submit(choose_band, work, rgb, edge, band, border_width, solves) if edge.any() else None
+        choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
+        ways = np.zeros(work.shape, dtype=int) if band_ways is None else band_ways.result()
+        per_pixel = choice[labels]
+        chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
+        needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
+        jobs = {name: (rest, across) for name in sorted(needed)}
+        joint = "biharmonic" in jobs and edge.any()
+        if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
+            jobs["biharmonic"] = (rest | edge, across)
+        ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
+        for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
+            where = edge
+            if b == "nyu_colorization":  # the costly solve: only where taken, with half a stretch beside it
+                taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
+                where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= BAND_STRETCH // 2)
+            jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
+        for name in list(early):  # the same masks (the thin plate's rest | edge is rest where there is no band)
+            if name in jobs:
+                del jobs[name]
+            else:  # not chosen after all: unused (the pool waits for it at its end if it has started)
+                early.pop(name).cancel()
+        # the costly NYU fills first, then the larger first, so that the last to start is a short one
+        order = sorted(jobs, key=lambda name: (not name.endswith("nyu_colorization"), -int(jobs[name][0].sum())))
+        early.update(_submit_fills(solves, out, rgb, {name: jobs[name] for name in order}))
+        fills = {name: future.result() for name, future in early.items()}
     if joint:
         out[edge] = fills["biharmonic"][edge]
     for k in chosen:
@@ -444,11 +466,26 @@ def _base_fill(name: str, depth, rgb, mask, across) -> np.ndarray:
     return fill_nyu_colorization(depth, rgb, mask, rtol=1e-7, reach=NYU_REACH)
 
 
-def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
+def _solver_threads() -> int:
+    """Threads for ``auto``'s solves: one per core this process may use."""
+    return max(len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1, 1)
+
+
+def _submit_fills(pool: Executor, depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, Future]:
+    """Each named base fill of ``jobs`` (:func:`_base_fills`) submitted to ``pool``, in the order of ``jobs``."""
+    return {name: pool.submit(_base_fill, name.removeprefix("band:"), depth, rgb, *job) for name, job in jobs.items()}
+
+
+def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]],
+                pool: Executor | None = None) -> dict[str, np.ndarray]:
     """Each named base fill (:func:`_base_fill`; a name ``"band:<fill>"`` runs ``<fill>``: the band's own solve
     beside the holes') of its ``(mask, across)`` in ``jobs``, the solves side by side
     in threads, each on one BLAS thread (:mod:`rgbd2scene.blas`): the sparse solvers release the GIL, so on two
-    cores they overlap (TUM frame: the fill 0.70 s wall instead of 1.0 s); each result is the same."""
+    cores they overlap (TUM frame: the fill 0.70 s wall instead of 1.0 s); each result is the same. ``pool``:
+    the solves go to this pool (its caller holds :func:`~rgbd2scene.blas.single_blas_thread`), not to their own
+    threads, so that ``auto``'s solves queue for the cores together, longest first."""
+    if pool is not None:
+        return {name: future.result() for name, future in _submit_fills(pool, depth, rgb, jobs).items()}
     with single_blas_thread():
         if len(jobs) < 2:
             return {name: _base_fill(name.removeprefix("band:"), depth, rgb, *job) for name, job in jobs.items()}
@@ -458,7 +495,8 @@ def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> d
             return {name: future.result() for name, future in futures.items()}
 
 
-def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int, coverage: float, copies: int):
+def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int, coverage: float, copies: int,
+                 pool: Executor | None = None):
     """Mean absolute error of each candidate on each hole's copies (inf where not tried) and the copies'
     pixel count per hole; the colour-guided fills only on copies of ``guided`` holes."""
     n = traits.wide.size - 1
@@ -480,7 +518,7 @@ def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int,
     jobs = {"harmonic": (test, across), "biharmonic": (test, across)}
     if at.any():
         jobs["nyu_colorization"] = (at, across & at)
-    fills = _base_fills(trial, rgb, jobs)
+    fills = _base_fills(trial, rgb, jobs, pool)
     npx = np.bincount(owner, minlength=n + 1).astype(np.float64)
     for k, name in enumerate(NAMES):
         if any(b not in fills for b in CANDIDATES[name]):
@@ -492,7 +530,7 @@ def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int,
 
 
 def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, traits: HoleTraits,
-                    copies: int = 3) -> np.ndarray:
+                    copies: int = 3, pool: Executor | None = None) -> np.ndarray:
     """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
 
     Copies of each hole are laid onto valid depth nearby, each wholly on pixels at least
@@ -513,6 +551,7 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     labels : int (H, W) the holes (0 = none), one label per hole.
     traits : per label.
     copies : copies per hole.
+    pool : where the solves run (:func:`_base_fills`); None: threads of their own.
 
     Returns
     -------
@@ -526,11 +565,12 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     choice = np.full(n + 1, NAMES.index("harmonic"))
     choice[guided] = NAMES.index(GUIDED[0])
     choice[traits.wide & (rgb is None)] = NAMES.index("biharmonic")
-    err, npx = _copy_errors(depth, rgb, labels, traits, guided, COPY_CLEARANCE, 1.0, copies)
+    err, npx = _copy_errors(depth, rgb, labels, traits, guided, COPY_CLEARANCE, 1.0, copies, pool)
     smooth_err, smooth_npx = err, npx
     if smooth.any() and not (smooth & (npx > 0)).any():
         narrow_only = np.where(smooth[labels], labels, 0)
-        smooth_err, smooth_npx = _copy_errors(depth, None, narrow_only, traits, np.zeros_like(guided), 2, 0.6, copies)
+        smooth_err, smooth_npx = _copy_errors(depth, None, narrow_only, traits, np.zeros_like(guided), 2, 0.6,
+                                              copies, pool)
     pool = smooth & (smooth_npx > 0)
     if pool.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
         choice[smooth] = int((smooth_err[pool, :2] * smooth_npx[pool, None]).sum(axis=0).argmin())
@@ -602,7 +642,7 @@ def band_strips(band: np.ndarray, valid: np.ndarray, stretch: int = BAND_STRETCH
     return seg_band, seg_strip
 
 
-def choose_band(work, rgb, edge, band, border_width) -> np.ndarray:
+def choose_band(work, rgb, edge, band, border_width, pool: Executor | None = None) -> np.ndarray:
     """Per pixel of ``edge`` (the band to fill), the index in :data:`BAND_NAMES` of its fill, chosen per
     stretch of its edge by evidence from the capture (module docstring, 4.).
 
@@ -611,7 +651,8 @@ def choose_band(work, rgb, edge, band, border_width) -> np.ndarray:
     resolution, :data:`BAND_SCALE`), bounded as the band is
     (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`); each stretch takes the candidate of
     :data:`BAND_CANDIDATES` with the least absolute error on its strip, the biharmonic fill (index 0)
-    where the strip is empty or on a tie. Without RGB, the biharmonic or the harmonic fill.
+    where the strip is empty or on a tie. Without RGB, the biharmonic or the harmonic fill. ``pool``: where the
+    solves run (:func:`_base_fills`).
     """
     valid = valid_depth(work)
     seg_band = np.where(edge, band_strips(band, valid, BAND_STRETCH)[0], 0)
@@ -626,7 +667,7 @@ def choose_band(work, rgb, edge, band, border_width) -> np.ndarray:
     trial = np.where(test, np.nan, small).astype(np.float32)
     unknown = edge[::sc, ::sc] | test
     jobs = {b: (unknown, np.zeros(small.shape, dtype=bool)) for b in bases}
-    fills = _base_fills(trial, None if rgb is None else rgb[::sc, ::sc], jobs)
+    fills = _base_fills(trial, None if rgb is None else rgb[::sc, ::sc], jobs, pool)
     fills = {b: clip_to_surround(f, trial, unknown, border_width // sc, BAND_MARGIN) for b, f in fills.items()}
     truth = small[test].astype(np.float64)
     owner = seg_strip[test]
