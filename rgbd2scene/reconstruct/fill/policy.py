@@ -114,7 +114,8 @@ What ``auto`` does
    not show). On masks of neither split it is neutral: the held-out split (seeds 20-27,
    ``benchmarks/results/fill_heldout.md``) 17 -> 18 of 77 rows above 1.10, 0.782 -> 0.783; the report
    split 21 -> 20 of 101 rows, 0.713 -> 0.709. Kept because it is not worse on either and decides from the
-   capture, not from rules tuned on two captures. Tried and not kept: the evidence at full resolution (0.756, 16 rows, about 1 s more), the
+   capture, not from rules tuned on two captures. Tried and not kept: the evidence at full resolution
+   (0.756, 16 rows, about 1 s more), the
    strip hidden with the band left out of its solves (full resolution: 0.759, 16 rows), the band's
    harmonic and NYU fills solved only on the stretches that chose them, nothing beside them (measured with
    the 20 % margin below: 15 -> 19 rows, tissue transplant 5 1.05 -> 1.22), another fill only where it
