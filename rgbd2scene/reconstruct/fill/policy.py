@@ -488,15 +488,10 @@ def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]],
     cores they overlap (TUM frame: the fill 0.70 s wall instead of 1.0 s); each result is the same. ``pool``:
     the solves go to this pool (its caller holds :func:`~rgbd2scene.blas.single_blas_thread`), not to their own
     threads, so that ``auto``'s solves queue for the cores together, longest first."""
-    if pool is not None:
-        return {name: future.result() for name, future in _submit_fills(pool, depth, rgb, jobs).items()}
-    with single_blas_thread():
-        if len(jobs) < 2:
-            return {name: _base_fill(name.removeprefix("band:"), depth, rgb, *job) for name, job in jobs.items()}
-        with ThreadPoolExecutor(max_workers=len(jobs)) as pool:
-            futures = {name: pool.submit(_base_fill, name.removeprefix("band:"), depth, rgb, *job)
-                       for name, job in jobs.items()}
-            return {name: future.result() for name, future in futures.items()}
+    if pool is None:
+        with single_blas_thread(), ThreadPoolExecutor(max_workers=max(len(jobs), 1)) as own:
+            return _base_fills(depth, rgb, jobs, own)
+    return {name: future.result() for name, future in _submit_fills(pool, depth, rgb, jobs).items()}
 
 
 def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int, coverage: float, copies: int,
