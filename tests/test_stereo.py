@@ -6,6 +6,7 @@ the frames involved (the mesh in the unrectified left camera) and to a render th
 """
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -120,6 +121,30 @@ def test_rectification_keeps_the_field_of_view_and_aligns_rows(n_coeffs):
     z_rect = (points @ rect.R1.T)[:, 2]
     assert np.abs(lr[:, 1] - rr[:, 1]).max() < 1e-3
     assert np.abs((lr[:, 0] - rr[:, 0]) - rect.K[0, 0] * rect.baseline / z_rect).max() < 1e-3
+
+
+def test_a_scope_rig_and_its_calibration_have_one_rectified_pair():
+    """The rig's rectified pair (CONVENTIONS 1.2: ``render --rectify``, calibration.yaml, evaluation) is the
+    capture's at alpha 0 and the rig's size, exactly; an already rectified rig is its own (R = I, P = [K | t]),
+    which is what ``cv2.stereoRectify`` gives it too, up to rounding."""
+    from rgbd2scene.capture.stereo import make_calibration
+    from rgbd2scene.scene.rig import StereoRig, read_scope_calibration, rectification
+
+    rig = read_scope_calibration(Path(__file__).parents[1] / "data_samples" / "scope" / "calibration.yaml")
+    calib = make_calibration(rig.left.K, rig.left.distortion, rig.right.K, rig.right.distortion, rig.R, rig.T,
+                             rig.left.width, rig.left.height)
+    ours, theirs = rectification(rig), rectify(calib, alpha=0.0, keep_resolution=False)
+    assert not np.allclose(ours.R1, np.eye(3)) and (ours.width, ours.height) == (theirs.width, theirs.height)
+    for name in ("R1", "R2", "P1", "P2", "Q"):
+        assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
+
+    rectified = StereoRig.endoscope(64, 32, 60.0, 0.004)
+    own = rectification(rectified)
+    opencv = cv2.stereoRectify(rectified.left.K, np.zeros(5), rectified.left.K, np.zeros(5), (64, 32),
+                               np.eye(3), np.array([-0.004, 0.0, 0.0]), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    assert np.array_equal(own.R1, np.eye(3)) and np.array_equal(own.P1[:, :3], rectified.left.K)
+    for mine, cv in zip((own.R1, own.R2, own.P1, own.P2, own.Q), opencv[:5], strict=True):
+        np.testing.assert_allclose(mine, cv, rtol=1e-12, atol=1e-12)
 
 
 # --------------------------------------------------------------------------------------------- matching

@@ -8,9 +8,10 @@ size as ``image_size: [w, h]`` or ``width``/``height``) or a folder laid out lik
 (``calib.{left,right}.intrinsic.txt`` 3x3, ``calib.{left,right}.distortion.txt``, ``calib.l2r.4x4`` in mm;
 the image size then comes from the images).
 
-Rectification (:func:`rectify`) uses ``cv2.stereoRectify`` with ``alpha=1``: every pixel of both source
-images stays in the rectified images (alpha=0 would crop the field of view to the pixels valid in both;
-the margins alpha=1 leaves are marked by ``image_mask`` and never meshed). With ``keep_resolution`` the
+Rectification (:func:`rectify`, through :func:`~rgbd2scene.geometry.rectification.stereo_rectification`, the
+one definition of a rig's rectified pair) uses ``alpha=1``: every pixel of both source images stays in the
+rectified images (alpha=0 would crop the field of view to the pixels valid in both; the margins alpha=1 leaves
+are marked by ``image_mask`` and never meshed). With ``keep_resolution`` the
 rectified canvas grows until its focal length reaches the one ``stereoRectify`` picks without scaling
 (the mean fy of the two cameras for a horizontal pair), so no part of the image is down-sampled.
 
@@ -44,6 +45,7 @@ from rgbd2scene.capture.readers import Capture, read_rgb
 from rgbd2scene.conventions import depth_from_disparity
 from rgbd2scene.errors import UserError
 from rgbd2scene.geometry.camera import Intrinsics
+from rgbd2scene.geometry.rectification import Rectification, stereo_rectification
 
 #: Numbers of distortion coefficients OpenCV's camera models take.
 DISTORTION_SIZES = (4, 5, 8, 12, 14)
@@ -217,62 +219,16 @@ def read_stereo_calibration(path: str | Path, image_size: tuple[int, int] | None
 # ---------------------------------------------------------------------------------------------- rectification
 
 
-@dataclass
-class Rectification:
-    """``cv2.stereoRectify`` outputs and the rectified image size (width x height).
-
-    ``R1`` rotates the calibration's left camera frame into the rectified left frame (X_rect = R1 X_left).
-    """
-
-    R1: np.ndarray
-    R2: np.ndarray
-    P1: np.ndarray
-    P2: np.ndarray
-    Q: np.ndarray
-    width: int
-    height: int
-    alpha: float
-
-    @property
-    def K(self) -> np.ndarray:
-        """Intrinsics shared by both rectified images."""
-        return self.P1[:3, :3].copy()
-
-    @property
-    def baseline(self) -> float:
-        """Metres; the right rectified camera sits at +baseline along the left one's x axis."""
-        return float(-self.P2[0, 3] / self.P2[0, 0])
-
-    @property
-    def T_left_rectified(self) -> np.ndarray:
-        """4x4 pose of the rectified left camera in the calibration's left camera frame (rotation R1^T)."""
-        T = np.eye(4)
-        T[:3, :3] = self.R1.T
-        return T
-
-    def to_dict(self) -> dict:
-        return {"R1": self.R1.tolist(), "R2": self.R2.tolist(), "P1": self.P1.tolist(), "P2": self.P2.tolist(),
-                "K": self.K.tolist(), "baseline_m": self.baseline, "image_size": [self.width, self.height],
-                "alpha": self.alpha}
-
-
 def rectify(calib: StereoCalibration, alpha: float = 1.0, keep_resolution: bool = True) -> Rectification:
-    """Rectifying rotations and projections of a calibrated pair (principal points made equal).
+    """Rectifying rotations and projections of a calibrated pair (principal points made equal):
+    :func:`~rgbd2scene.geometry.rectification.stereo_rectification` of ``calib``.
 
     ``alpha`` as in ``cv2.stereoRectify`` (1: keep every source pixel, 0: only pixels valid in both).
     ``keep_resolution`` enlarges the rectified image so that its focal length is not below the one of
     ``alpha=-1`` (no scaling), see the module docstring.
     """
-    args = (calib.K_left, calib.D_left, calib.K_right, calib.D_right, calib.size, calib.R, calib.T)
-    flags = cv2.CALIB_ZERO_DISPARITY
-    size = calib.size
-    if keep_resolution:
-        natural = cv2.stereoRectify(*args, flags=flags, alpha=-1)[2][0, 0]
-        scaled = cv2.stereoRectify(*args, flags=flags, alpha=alpha)[2][0, 0]
-        grow = max(1.0, natural / scaled)
-        size = (math.ceil(calib.width * grow), math.ceil(calib.height * grow))
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(*args, flags=flags, alpha=alpha, newImageSize=size)
-    return Rectification(R1, R2, P1, P2, Q, size[0], size[1], float(alpha))
+    return stereo_rectification(calib.K_left, calib.D_left, calib.K_right, calib.D_right, calib.size, calib.R,
+                                calib.T, alpha=alpha, keep_resolution=keep_resolution)
 
 
 @dataclass
@@ -288,11 +244,10 @@ class RectifiedPair:
 def rectify_pair(calib: StereoCalibration, rect: Rectification, left: np.ndarray, right: np.ndarray) -> RectifiedPair:
     """Undistort and rectify both images (bilinear); a pixel holds image data when its bilinear footprint
     lies wholly inside the source image."""
-    size = (rect.width, rect.height)
     out = []
-    for image, K, D, R, P in ((left, calib.K_left, calib.D_left, rect.R1, rect.P1),
-                              (right, calib.K_right, calib.D_right, rect.R2, rect.P2)):
-        mx, my = cv2.initUndistortRectifyMap(K, D, R, P, size, cv2.CV_32FC1)
+    for eye, image, K, D in (("left", left, calib.K_left, calib.D_left),
+                             ("right", right, calib.K_right, calib.D_right)):
+        mx, my = rect.maps(eye, K, D)
         mask = (mx >= 0) & (my >= 0) & (mx <= calib.width - 1) & (my <= calib.height - 1)
         out.append((cv2.remap(image, mx, my, cv2.INTER_LINEAR), mask))
     return RectifiedPair(out[0][0], out[1][0], out[0][1], out[1][1])

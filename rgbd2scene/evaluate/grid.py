@@ -49,14 +49,9 @@ class MatchingGrid:
         """The dataset's own grid when it is rectified, else the rectified grid of its rig (see the module)."""
         if dataset.rectified:
             return cls(dataset.fx, dataset.baseline, dataset.fx)
-        import cv2
-
         rig = dataset.rig
         rect = rectification(rig)
-        size = (rig.left.width, rig.left.height)
-        rectify = {eye: cv2.initUndistortRectifyMap(rig.camera(eye).K, rig.camera(eye).distortion, R, P[:3, :3],
-                                                    size, cv2.CV_32FC1)
-                   for eye, R, P in (("left", rect.R1, rect.P1), ("right", rect.R2, rect.P2))}
+        rectify = {eye: rect.maps(eye, rig.camera(eye).K, rig.camera(eye).distortion) for eye in ("left", "right")}
         P1 = np.asarray(rect.P1, dtype=np.float64)
         f = float(P1[0, 0])
         rays = rig.left.rays() @ np.asarray(rect.R1, dtype=np.float64).T  # raw left rays, rectified frame

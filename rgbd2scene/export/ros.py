@@ -135,7 +135,7 @@ def camera_info_matrices(rig: StereoRig, eye: str) -> dict[str, np.ndarray]:
     for a raw pair the eye's own D and K, and R, P of its rectification (``cv2.stereoRectify``, alpha 0), as
     ROS's stereo_image_proc expects them."""
     rect = rectification(rig)
-    R, P = (rect.R1, rect.P1) if eye == "left" else (rect.R2, rect.P2)
+    R, P = rect.eye(eye)
     camera = rig.camera(eye)
     d = np.asarray(camera.D, np.float64) if camera.D else np.zeros(5)
     return {"d": d, "k": camera.K.ravel(), "r": np.asarray(R, np.float64).ravel(),

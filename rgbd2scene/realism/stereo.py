@@ -125,7 +125,6 @@ def rectify_with(calib: StereoCalibration, left: np.ndarray, right: np.ndarray,
     pair = rectify_pair(calib, rect, left, right)
     valid = pair.left_mask & pair.right_mask
     if mask is not None:
-        mx, my = cv2.initUndistortRectifyMap(calib.K_left, calib.D_left, rect.R1, rect.P1, calib.size,
-                                             cv2.CV_32FC1)
+        mx, my = rect.maps("left", calib.K_left, calib.D_left)
         valid &= cv2.remap(np.asarray(mask, np.uint8), mx, my, cv2.INTER_NEAREST).astype(bool)
     return RectifiedView(pair.left, pair.right, valid, float(rect.K[0, 0] * rect.baseline))

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgbd2scene.geometry.camera import Intrinsics
+from rgbd2scene.geometry.rectification import Rectification
 from rgbd2scene.scene.rig import StereoRig, rectification
 
 #: Border (pixels of the rectified render) kept around the raw rays, for the bilinear lookup.
@@ -86,10 +87,10 @@ def raw_render_plan(rig: StereoRig, supersample: float = 1.0) -> RawRender:
     return RawRender(intrinsics, R_rect, maps, has_ray)
 
 
-def rectified_rig(rig: StereoRig) -> tuple[StereoRig, np.ndarray]:
+def rectified_rig(rig: StereoRig) -> tuple[StereoRig, Rectification]:
     """The rectified pair of a raw rig (``render --rectify``): both eyes ``P1[:3, :3]``, no distortion, the
-    baseline |T| along x; and the rotation R1 from the raw left eye's frame to the rectified one."""
+    baseline |T| along x; and the rig's rectification (R1 turns the raw left eye's frame into the rectified
+    one: ``T_left_rectified``)."""
     rect = rectification(rig)
-    K = np.asarray(rect.P1, dtype=np.float64)[:3, :3]
-    camera = Intrinsics.from_K(K, rig.left.width, rig.left.height)
-    return StereoRig(camera, rig.baseline, rig.clip_start, rig.clip_end), np.asarray(rect.R1, dtype=np.float64)
+    camera = Intrinsics.from_K(rect.K, rig.left.width, rig.left.height)
+    return StereoRig(camera, rig.baseline, rig.clip_start, rig.clip_end), rect

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.rectification import Rectification, stereo_rectification
 
 #: da Vinci-class stereo endoscope: 5 mm baseline; 512x256 as in the VisionBlender dataset.
 DEFAULT_BASELINE = 0.005
@@ -126,39 +127,18 @@ class StereoRig:
                    d.get("R"), d.get("T"))
 
 
-@dataclass(frozen=True)
-class Rectification:
-    """``cv2.stereoRectify`` of a rig at ``alpha=0`` with zero disparity at infinity: the rectified eyes'
-    rotations R1, R2 (rectified from raw camera frame), projections P1, P2 (3x4) and the disparity-to-depth
-    matrix Q."""
-
-    R1: np.ndarray
-    R2: np.ndarray
-    P1: np.ndarray
-    P2: np.ndarray
-    Q: np.ndarray
-
-
 def rectification(rig: StereoRig) -> Rectification:
-    """The rectified pair of ``rig`` as ``cv2.stereoRectify(alpha=0)`` defines it (CONVENTIONS 1.2, section 2).
+    """The rectified pair of ``rig`` as ``cv2.stereoRectify(alpha=0)`` defines it at the rig's image size
+    (CONVENTIONS 1.2, section 2; :func:`~rgbd2scene.geometry.rectification.stereo_rectification`).
 
-    A rectified rig is its own rectification: R1 = R2 = I, P1 = [K | 0], P2 = [K | (-fx B, 0, 0)].
+    A rectified rig is its own rectification: R1 = R2 = I, P1 = [K | 0], P2 = [K | (-fx B, 0, 0)]
+    (:meth:`~rgbd2scene.geometry.rectification.Rectification.identity`).
     """
-    import cv2
-
-    if rig.rectified:
-        K = rig.left.K
-        P1 = np.hstack([K, np.zeros((3, 1))])
-        P2 = P1.copy()
-        P2[0, 3] = -K[0, 0] * rig.baseline
-        fx, cx, cy = K[0, 0], K[0, 2], K[1, 2]
-        Q = np.array([[1, 0, 0, -cx], [0, 1, 0, -cy], [0, 0, 0, fx], [0, 0, 1 / rig.baseline, 0]])
-        return Rectification(np.eye(3), np.eye(3), P1, P2, Q)
     size = (rig.left.width, rig.left.height)
-    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(rig.left.K, rig.left.distortion, rig.right.K, rig.right.distortion,
-                                                size, np.asarray(rig.R), np.asarray(rig.T),
-                                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
-    return Rectification(R1, R2, P1, P2, Q)
+    if rig.rectified:
+        return Rectification.identity(rig.left.K, rig.baseline, *size)
+    return stereo_rectification(rig.left.K, rig.left.distortion, rig.right.K, rig.right.distortion, size,
+                                np.asarray(rig.R), np.asarray(rig.T))
 
 
 #: Keys of an OpenCV FileStorage stereo calibration (``--scope-calib`` YAML/XML).

@@ -19,8 +19,6 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
 from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.dataset.calibration import CALIBRATION_YAML, write_calibration
@@ -183,10 +181,8 @@ def render_model(description: SceneDescription, options: RenderOptions) -> Scene
     if options.size is not None:
         description = replace(description, rig=description.rig.resized(*options.size))
     if options.rectify and not description.rig.rectified:
-        rig, R1 = rectified_rig(description.rig)
-        turn = np.eye(4)
-        turn[:3, :3] = R1.T
-        path = replace(description.path, poses=description.path.poses @ turn)
+        rig, rect = rectified_rig(description.rig)
+        path = replace(description.path, poses=description.path.poses @ rect.T_left_rectified)
         description = replace(description, rig=rig, path=path)
     return description
 
