@@ -147,6 +147,27 @@ def test_a_scope_rig_and_its_calibration_have_one_rectified_pair():
         np.testing.assert_allclose(mine, cv, rtol=1e-12, atol=1e-12)
 
 
+
+def test_a_calibration_yaml_reads_alike_for_the_dataset_and_the_scope(tmp_path):
+    """``calibration.yaml`` has one FileStorage reader: the realism report's calibration of a raw dataset and
+    ``--scope-calib``'s rig hold the same values, exactly; each still words a missing key its own way."""
+    from rgbd2scene.errors import UserError
+    from rgbd2scene.realism.stereo import read_calibration_yaml
+    from rgbd2scene.scene.rig import StereoRig, read_scope_calibration
+
+    path = Path(__file__).parents[1] / "data_samples" / "scope" / "calibration.yaml"
+    calib, rig = read_calibration_yaml(path), read_scope_calibration(path)
+    assert StereoRig.from_calibration(calib.to_dict()) == rig and calib.D_left.size == 5
+    assert np.array_equal(calib.R, np.asarray(rig.R)) and np.array_equal(calib.T, np.asarray(rig.T))
+    text = path.read_text()
+    start = text.index("D2:")
+    (tmp_path / "no_d2.yaml").write_text(text[:start] + text[text.index("R:", start):])
+    with pytest.raises(ValueError, match=r"no_d2.yaml: no D2$"):
+        read_calibration_yaml(tmp_path / "no_d2.yaml")
+    with pytest.raises(UserError, match=r"no_d2.yaml: missing key\(s\) D2 \(a calibration holds"):
+        read_scope_calibration(tmp_path / "no_d2.yaml")
+
+
 # --------------------------------------------------------------------------------------------- matching
 
 

@@ -6,7 +6,9 @@ extrinsics ``R``, ``T`` (metres): a point X in the left camera frame is ``R X + 
 :func:`read_stereo_calibration` takes a JSON file (``K_left, D_left, K_right, D_right, R, T`` and the image
 size as ``image_size: [w, h]`` or ``width``/``height``) or a folder laid out like the Hamlyn data
 (``calib.{left,right}.intrinsic.txt`` 3x3, ``calib.{left,right}.distortion.txt``, ``calib.l2r.4x4`` in mm;
-the image size then comes from the images).
+the image size then comes from the images). :func:`read_opencv_calibration` is the one reader of an OpenCV
+FileStorage calibration (``K1 D1 K2 D2 R T``, ``image_width``, ``image_height``: a dataset's
+``calibration.yaml``, ``scene --scope-calib``).
 
 Rectification (:func:`rectify`, through :func:`~rgbd2scene.geometry.rectification.stereo_rectification`, the
 one definition of a rig's rectified pair) uses ``alpha=1``: every pixel of both source images stays in the
@@ -214,6 +216,34 @@ def read_stereo_calibration(path: str | Path, image_size: tuple[int, int] | None
     except json.JSONDecodeError as exc:
         raise ValueError(f"not valid JSON ({exc})") from None
     return calibration_from_json(data)
+
+
+#: Keys of an OpenCV FileStorage stereo calibration (CONVENTIONS section 2's ``calibration.yaml``, what
+#: ``scene --scope-calib`` reads): the matrices, then the image size.
+OPENCV_CALIB_KEYS = ("K1", "D1", "K2", "D2", "R", "T")
+OPENCV_SIZE_KEYS = ("image_width", "image_height")
+
+
+def read_opencv_calibration(path: str | Path) -> dict | None:
+    """The nodes of an OpenCV FileStorage stereo calibration (``.yaml``/``.yml``/``.xml``): each of
+    ``OPENCV_CALIB_KEYS`` the file holds as ``node.mat()`` (None where OpenCV reads no matrix) and each of
+    ``OPENCV_SIZE_KEYS`` as a number; the keys the file lacks are left out. None when OpenCV does not open the
+    file; ``ValueError`` when OpenCV rejects it. The callers check the keys and word their own errors."""
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except cv2.error as exc:
+        raise ValueError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1]})") from None
+    try:
+        if not fs.isOpened():
+            return None
+        nodes = {}
+        for key in (*OPENCV_CALIB_KEYS, *OPENCV_SIZE_KEYS):
+            node = fs.getNode(key)
+            if not node.empty():
+                nodes[key] = node.real() if key in OPENCV_SIZE_KEYS else node.mat()
+        return nodes
+    finally:
+        fs.release()
 
 
 # ---------------------------------------------------------------------------------------------- rectification

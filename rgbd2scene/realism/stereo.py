@@ -19,7 +19,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rgbd2scene.capture.stereo import StereoCalibration, make_calibration, rectify, rectify_pair
+from rgbd2scene.capture.stereo import (
+    OPENCV_CALIB_KEYS,
+    OPENCV_SIZE_KEYS,
+    StereoCalibration,
+    make_calibration,
+    read_opencv_calibration,
+    rectify,
+    rectify_pair,
+)
 from rgbd2scene.evaluate.methods import DisparityRange, StereoMethod
 
 #: A left match is consistent when the right view's disparity at its match differs by at most this (pixels).
@@ -93,19 +101,12 @@ def read_calibration_yaml(path: str | Path) -> StereoCalibration:
     path = Path(path)
     if not path.is_file():
         raise OSError(f"{path}: not found")
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    try:
-        values = {}
-        for key in ("K1", "D1", "K2", "D2", "R", "T", "image_width", "image_height"):
-            node = fs.getNode(key)
-            if node.empty():
-                raise ValueError(f"{path}: no {key}")
-            values[key] = node.real() if key.startswith("image_") else node.mat()
-    finally:
-        fs.release()
+    values = read_opencv_calibration(path) or {}
+    for key in (*OPENCV_CALIB_KEYS, *OPENCV_SIZE_KEYS):
+        if key not in values:
+            raise ValueError(f"{path}: no {key}")
     return make_calibration(values["K1"], values["D1"], values["K2"], values["D2"], values["R"], values["T"].ravel(),
                             int(values["image_width"]), int(values["image_height"]))
-
 
 @dataclass
 class RectifiedView:

@@ -87,6 +87,16 @@ class StereoRig:
         """T_world_cam of the right eye from the left eye's T_world_cam."""
         return np.asarray(T_world_left, dtype=np.float64) @ self.T_left_right
 
+    @classmethod
+    def from_calibration(cls, values: dict) -> StereoRig:
+        """The calibrated pair of a stereo calibration's values (``image_size``, ``K_left``, ``D_left``,
+        ``K_right``, ``D_right``, ``R``, ``T``: :meth:`~rgbd2scene.capture.stereo.StereoCalibration.to_dict`, as
+        a stereo capture records them). A missing key is a ``KeyError``, a malformed value a ``ValueError``."""
+        width, height = (int(v) for v in values["image_size"])
+        return cls(Camera(Intrinsics.from_K(values["K_left"], width, height), values["D_left"]), 0.0,
+                   right=Camera(Intrinsics.from_K(values["K_right"], width, height), values["D_right"]),
+                   R=values["R"], T=values["T"])
+
     def resized(self, width: int, height: int) -> StereoRig:
         """Both eyes sampled at ``width`` x ``height`` (the right eye scaled as the left)."""
         sx, sy = width / self.left.width, height / self.left.height
@@ -141,10 +151,6 @@ def rectification(rig: StereoRig) -> Rectification:
                                 np.asarray(rig.R), np.asarray(rig.T))
 
 
-#: Keys of an OpenCV FileStorage stereo calibration (``--scope-calib`` YAML/XML).
-OPENCV_CALIB_KEYS = ("K1", "D1", "K2", "D2", "R", "T")
-
-
 def read_scope_calibration(path, size: tuple[int, int] | None = None) -> StereoRig:
     """The rig of a stereo calibration file (``--scope-calib``): two eyes with their own K and D, and R, T
     (``X_right = R X_left + T``, metres).
@@ -157,7 +163,12 @@ def read_scope_calibration(path, size: tuple[int, int] | None = None) -> StereoR
     """
     from pathlib import Path
 
-    from rgbd2scene.capture.stereo import make_calibration, read_stereo_calibration
+    from rgbd2scene.capture.stereo import (
+        OPENCV_CALIB_KEYS,
+        make_calibration,
+        read_opencv_calibration,
+        read_stereo_calibration,
+    )
     from rgbd2scene.errors import UserError
     from rgbd2scene.geometry.camera import warn
 
@@ -166,48 +177,25 @@ def read_scope_calibration(path, size: tuple[int, int] | None = None) -> StereoR
         raise UserError(f"{path}: calibration file not found")
     try:
         if path.suffix.lower() in (".yaml", ".yml", ".xml"):
-            arrays, file_size = _read_opencv_calibration(path)
+            nodes = read_opencv_calibration(path)
+            if nodes is None:
+                raise ValueError("not an OpenCV FileStorage file")
+            missing = [key for key in OPENCV_CALIB_KEYS if nodes.get(key) is None]
+            if missing:
+                raise ValueError(f"missing key(s) {', '.join(missing)} (a calibration holds "
+                                 f"{' '.join(OPENCV_CALIB_KEYS)} and image_width, image_height)")
+            file_size = ((int(nodes["image_width"]), int(nodes["image_height"]))
+                         if "image_width" in nodes and "image_height" in nodes else None)
             width, height = file_size or size or (0, 0)
             if not width:
                 raise ValueError("no image size (image_width and image_height)")
-            calib = make_calibration(arrays["K1"], arrays["D1"], arrays["K2"], arrays["D2"], arrays["R"],
-                                     arrays["T"], width, height)
+            calib = make_calibration(*(np.asarray(nodes[key], dtype=np.float64) for key in OPENCV_CALIB_KEYS),
+                                     width, height)
         else:
             calib = read_stereo_calibration(path, size)
     except (ValueError, OSError) as exc:
         raise UserError(f"{path}: {exc}") from None
-    rig = StereoRig(Camera(Intrinsics.from_K(calib.K_left, calib.width, calib.height), calib.D_left), 0.0,
-                    right=Camera(Intrinsics.from_K(calib.K_right, calib.width, calib.height), calib.D_right),
-                    R=calib.R, T=calib.T)
+    rig = StereoRig.from_calibration(calib.to_dict())
     for message in rig.check(str(path)):
         warn(message)
     return rig
-
-
-def _read_opencv_calibration(path) -> tuple[dict[str, np.ndarray], tuple[int, int] | None]:
-    """The matrices and the image size (None when absent) of an OpenCV FileStorage calibration."""
-    import cv2
-
-    try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise ValueError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1]})") from None
-    try:
-        if not fs.isOpened():
-            raise ValueError("not an OpenCV FileStorage file")
-        arrays, missing = {}, []
-        for key in OPENCV_CALIB_KEYS:
-            node = fs.getNode(key)
-            m = None if node.empty() else node.mat()
-            if m is None:
-                missing.append(key)
-            else:
-                arrays[key] = np.asarray(m, dtype=np.float64)
-        if missing:
-            raise ValueError(f"missing key(s) {', '.join(missing)} (a calibration holds "
-                             f"{' '.join(OPENCV_CALIB_KEYS)} and image_width, image_height)")
-        w, h = fs.getNode("image_width"), fs.getNode("image_height")
-        size = (int(w.real()), int(h.real())) if not (w.empty() or h.empty()) else None
-        return arrays, size
-    finally:
-        fs.release()

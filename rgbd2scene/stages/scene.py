@@ -157,12 +157,7 @@ def capture_camera(record: dict, options: SceneOptions) -> tuple[StereoRig, np.n
     stereo = capture.get("stereo")
     try:
         if stereo is not None:
-            calib = stereo["calibration_values"]
-            width, height = (int(v) for v in calib["image_size"])
-            rig = StereoRig(Camera(Intrinsics.from_K(calib["K_left"], width, height), calib["D_left"]), 0.0,
-                            right=Camera(Intrinsics.from_K(calib["K_right"], width, height), calib["D_right"]),
-                            R=calib["R"], T=calib["T"])
-            return rig, np.eye(4)
+            return StereoRig.from_calibration(stereo["calibration_values"]), np.eye(4)
         intrinsics = Intrinsics.from_dict(capture["intrinsics"])
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"--path capture: the scene's capture record has no camera ({exc!r}); give a capture "
