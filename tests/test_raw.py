@@ -214,6 +214,24 @@ def test_bad_scope_calibrations_are_one_line_errors(tmp_path):
         read_scope_calibration(write("nan.yaml", **{**good, "K1": K1 * np.nan}))
     with pytest.raises(UserError, match="folds"):
         read_scope_calibration(write("fold.yaml", **{**good, "D1": np.array([-3.0, 0, 0, 0, 0])}))
+    # Files OpenCV itself rejects (its constructor raised a SystemError traceback before) and a matrix key
+    # holding no matrix: one line naming the file, also for a dataset's calibration.yaml (realism).
+    from rgbd2scene.realism.stereo import read_calibration_yaml
+
+    (tmp_path / "empty.yaml").write_text("")
+    (tmp_path / "broken.yaml").write_text("K1: [1, 2\n")
+    (tmp_path / "list.yaml").write_text("%YAML:1.0\n---\n- 1\n- 2\n")
+    scalar = write("scalar.yaml", **{**good, "K2": 3.0})
+    for name, message in (("empty.yaml", "empty file"), ("broken.yaml", "not an OpenCV FileStorage file"),
+                          ("list.yaml", "not an OpenCV FileStorage calibration"), ("scalar.yaml", "K2")):
+        path = tmp_path / name
+        with pytest.raises(UserError, match=message) as error:
+            read_scope_calibration(path)
+        assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
+        with pytest.raises(ValueError, match=message) as error:
+            read_calibration_yaml(path)
+        assert "\n" not in str(error.value)
+    assert scalar.exists()
 
 
 def test_a_lens_folding_inside_the_image_sees_nothing_beyond_the_fold(tmp_path):

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,24 +227,43 @@ OPENCV_SIZE_KEYS = ("image_width", "image_height")
 
 def read_opencv_calibration(path: str | Path) -> dict | None:
     """The nodes of an OpenCV FileStorage stereo calibration (``.yaml``/``.yml``/``.xml``): each of
-    ``OPENCV_CALIB_KEYS`` the file holds as ``node.mat()`` (None where OpenCV reads no matrix) and each of
-    ``OPENCV_SIZE_KEYS`` as a number; the keys the file lacks are left out. None when OpenCV does not open the
-    file; ``ValueError`` when OpenCV rejects it. The callers check the keys and word their own errors."""
+    ``OPENCV_CALIB_KEYS`` the file holds as ``node.mat()`` and each of ``OPENCV_SIZE_KEYS`` as a number; the
+    keys the file lacks are left out. None when OpenCV does not open the file; ``ValueError`` for an empty or
+    malformed file and for a matrix key that holds no matrix. The callers check the keys and word their own
+    errors."""
+    if Path(path).stat().st_size == 0:
+        raise ValueError("an empty file, not an OpenCV FileStorage calibration")
     try:
+        # A malformed file: cv2.error, or (OpenCV 4.11's constructor) a SystemError caused by one.
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise ValueError(f"not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1]})") from None
+    except (cv2.error, SystemError) as exc:
+        raise ValueError(f"not an OpenCV FileStorage file ({_opencv_reason(exc)})") from None
     try:
         if not fs.isOpened():
             return None
+        if not fs.root().isMap():
+            raise ValueError("not an OpenCV FileStorage calibration (its top level is not a map of keys)")
         nodes = {}
         for key in (*OPENCV_CALIB_KEYS, *OPENCV_SIZE_KEYS):
             node = fs.getNode(key)
-            if not node.empty():
-                nodes[key] = node.real() if key in OPENCV_SIZE_KEYS else node.mat()
+            if node.empty():
+                continue
+            if key in OPENCV_SIZE_KEYS:
+                nodes[key] = node.real()
+            elif node.isMap():
+                nodes[key] = node.mat()
+            else:
+                raise ValueError(f"{key} is not a matrix (an OpenCV opencv-matrix node)")
         return nodes
     finally:
         fs.release()
+
+
+def _opencv_reason(exc: BaseException) -> str:
+    """What the OpenCV error behind ``exc`` says (its cause where OpenCV wrapped it), without its source line."""
+    text = str(exc.__cause__ or exc.__context__ or exc).strip()
+    found = re.search(r"error: \([^)]*\) (.*?)(?: in function .*)?$", text, flags=re.MULTILINE)
+    return f"OpenCV: {found.group(1)}" if found else text.splitlines()[-1] if text else type(exc).__name__
 
 
 # ---------------------------------------------------------------------------------------------- rectification

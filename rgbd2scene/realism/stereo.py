@@ -103,10 +103,11 @@ def read_calibration_yaml(path: str | Path) -> StereoCalibration:
         raise OSError(f"{path}: not found")
     values = read_opencv_calibration(path) or {}
     for key in (*OPENCV_CALIB_KEYS, *OPENCV_SIZE_KEYS):
-        if key not in values:
+        if values.get(key) is None:
             raise ValueError(f"{path}: no {key}")
     return make_calibration(values["K1"], values["D1"], values["K2"], values["D2"], values["R"], values["T"].ravel(),
                             int(values["image_width"]), int(values["image_height"]))
+
 
 @dataclass
 class RectifiedView:
