@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from rgbd2scene.capture.sensors import SENSORS
 from rgbd2scene.reconstruct.fill.planes import fit_segment_planes, planar_fill, sensor_noise
 from rgbd2scene.reconstruct.fill.solvers import fill_biharmonic, fill_harmonic
 
@@ -90,3 +91,14 @@ def test_no_extrapolation_far_beyond_the_support():
 def test_nothing_to_fill():
     depth, rgb, hole, _ = _two_planes()
     assert not np.isfinite(planar_fill(depth, rgb, np.zeros_like(hole))).any()
+
+
+def test_auto_takes_the_planes_for_a_wide_hole_across_two_planes():
+    from rgbd2scene.reconstruct.fill import fill_depth
+
+    depth, rgb, hole, truth = _two_planes()
+    res = fill_depth(depth, rgb, "auto", sensor=SENSORS["none"])
+    assert res.stats["auto_pixels"].get("planes", 0) > 0.8 * hole.sum()
+    err = np.abs(res.depth[hole] - truth[hole]) / truth[hole]
+    plain = fill_biharmonic(depth, hole)
+    assert err.mean() < 0.25 * (np.abs(plain[hole] - truth[hole]) / truth[hole]).mean()
