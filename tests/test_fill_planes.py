@@ -69,7 +69,7 @@ def test_curved_surface_refused():
     assert sensor_noise(depth, np.isfinite(depth)) < 0.001
     out = planar_fill(depth, rgb, hole)
     assert np.isfinite(out[hole]).mean() < 0.05
-    # the same dome as flat as the noise lets through: a plane where the noise hides the curvature
+    # control: a flat surface with the same noise and colour takes the plane
     flat = np.where(hole, np.nan, 0.6 * (1 + 0.0005 * np.random.default_rng(1).standard_normal(truth.shape)))
     assert np.isfinite(planar_fill(flat.astype(np.float32), rgb, hole)[hole]).mean() > 0.95
 
