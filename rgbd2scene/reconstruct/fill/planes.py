@@ -1,0 +1,240 @@
+"""Piecewise-planar hole filling from colour segments (indoor captures: walls, floors, desks).
+
+The colour image is cut into segments (:func:`colour_segments`: Felzenszwalb's graph segmentation of a
+crop round the holes, at reduced resolution); each segment that a hole cuts gets a plane in inverse depth,
+affine in pixel coordinates (1/z = a u + b v + c: a plane in space seen by a pinhole camera), fitted
+robustly to the segment's valid pixels near the holes (:func:`fit_segment_planes`), and its hole pixels
+take the plane where the segment's own valid depth says it is planar (:func:`planar_fill`): most of its
+support on the plane within a small relative residual, the residual's scale near the capture's own noise
+(:func:`sensor_noise`: a curved surface's shows above it), enough support, the hole pixels within the
+support's spread (an interpolation, not an extrapolation far beyond it), and the plane's depth at them
+within the support's range. Elsewhere nothing is filled (NaN): the caller keeps its own fill there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+#: Relative residual (|1/z_plane - 1/z| * z, about the relative depth error) under which a support pixel
+#: counts as on its segment's plane.
+PLANE_TOL = 0.01
+#: Share of a segment's support that must lie on its plane.
+PLANE_INLIERS = 0.8
+#: Fewest support pixels a plane is fitted to (of every other row and column: about 4 times as many in all).
+PLANE_MIN_SUPPORT = 20
+#: A segment is planar only where its residual's robust scale is at most this multiple of the capture's noise.
+PLANE_NOISE = 2.0
+#: The least relative noise :func:`sensor_noise` returns (noise-free depth, a renderer's: float rounding is not noise).
+NOISE_FLOOR = 1e-4
+#: Support: the segment's valid pixels within this many px of the holes.
+PLANE_REACH = 40
+#: A hole pixel takes its segment's plane only within this Mahalanobis distance of the support's pixel spread.
+PLANE_SPREAD = 2.5
+#: The plane's depth at the hole pixels must lie within the support's inverse-depth range widened by this share of it.
+PLANE_RANGE = 0.25
+
+
+@dataclass
+class SegmentPlanes:
+    """Per segment label (index 0 unused where labels start at 1): plane coefficients of 1/z in the normalised
+    pixel coordinates of :func:`fit_segment_planes`, support pixel count, inlier share, robust scale."""
+
+    coef: np.ndarray  # (n, 3)
+    support: np.ndarray  # (n,)
+    inliers: np.ndarray  # (n,)
+    rms: np.ndarray  # (n,) relative RMS residual of the inliers
+    scale: np.ndarray  # (n,) robust scale of the relative residual: 1.4826 times its median absolute value
+
+
+def colour_segments(rgb: np.ndarray, scale: int = 2, k: float = 150.0, sigma: float = 0.8,
+                    min_size: int = 40) -> np.ndarray:
+    """Felzenszwalb's graph segmentation of ``rgb`` at 1 / ``scale`` resolution, labels back at full size.
+
+    Parameters
+    ----------
+    rgb : uint8 (H, W, 3).
+    scale : the image is reduced by this factor (area averaging) before segmenting.
+    k, sigma, min_size : :func:`skimage.segmentation.felzenszwalb`'s ``scale``, ``sigma`` and ``min_size``
+        (the last in reduced pixels).
+
+    Returns
+    -------
+    int32 (H, W) labels from 0.
+    """
+    from skimage.segmentation import felzenszwalb
+
+    h, w = rgb.shape[:2]
+    small = rgb if scale == 1 else cv2.resize(rgb, (max(w // scale, 1), max(h // scale, 1)),
+                                              interpolation=cv2.INTER_AREA)
+    lab = felzenszwalb(small, scale=k, sigma=sigma, min_size=min_size).astype(np.int32)
+    if scale == 1:
+        return lab
+    return cv2.resize(lab, (w, h), interpolation=cv2.INTER_NEAREST)
+
+
+def _irls(basis: np.ndarray, inv: np.ndarray, seg: np.ndarray, n: int, tol: float,
+          iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-segment robust least squares of ``inv`` on the columns of ``basis`` (Cauchy weights of the relative
+    residual, scale ``tol``); returns the coefficients (n, k) and each pixel's relative residual."""
+    k = basis.shape[1]
+    wgt = np.ones_like(inv)
+    coef = np.zeros((n, k))
+    pairs = [(i, j) for i in range(k) for j in range(i, k)]
+    for _ in range(iterations + 1):
+        ata = np.zeros((n, k, k))
+        atb = np.zeros((n, k))
+        for i, j in pairs:
+            s = np.bincount(seg, weights=wgt * basis[:, i] * basis[:, j], minlength=n)
+            ata[:, i, j] = s
+            ata[:, j, i] = s
+        for i in range(k):
+            atb[:, i] = np.bincount(seg, weights=wgt * basis[:, i] * inv, minlength=n)
+        ok = ata[:, 0, 0] > 2 * k
+        ata[ok] += (1e-9 * ata[ok, 0, 0])[:, None, None] * np.eye(k)
+        coef[ok] = np.linalg.solve(ata[ok], atb[ok][..., None])[..., 0]
+        rel = (basis * coef[seg]).sum(axis=1) / inv - 1.0
+        wgt = 1.0 / (1.0 + (rel / tol) ** 2)
+    return coef, rel
+
+
+def fit_segment_planes(inv: np.ndarray, u: np.ndarray, v: np.ndarray, seg: np.ndarray, n: int,
+                       tol: float = PLANE_TOL, iterations: int = 4) -> SegmentPlanes:
+    """Robust plane fits, all segments at once: 1/z = a u + b v + c per segment by iteratively reweighted
+    least squares (Cauchy weights of the relative residual with scale ``tol``), normal equations summed
+    per segment with :func:`numpy.bincount` and solved as a batch.
+
+    Parameters
+    ----------
+    inv : float (m,) inverse depth of the support pixels.
+    u, v : float (m,) their normalised pixel coordinates (centred and scaled by the caller: conditioning).
+    seg : int (m,) their segment, in [0, n).
+    n : number of segments.
+    tol : scale of the relative residual.
+    iterations : reweighting rounds after the plain least-squares fit.
+
+    Returns
+    -------
+    SegmentPlanes
+    """
+    coef, rel = _irls(np.stack([np.ones_like(u), u, v], axis=1), inv, seg, n, tol, iterations)
+    support = np.bincount(seg, minlength=n).astype(np.float64)
+    inl = np.abs(rel) < tol
+    cnt = np.maximum(np.bincount(seg, weights=inl, minlength=n), 1)
+    share = np.bincount(seg, weights=inl, minlength=n) / np.maximum(support, 1)
+    rms = np.sqrt(np.bincount(seg, weights=inl * rel**2, minlength=n) / cnt)
+    order = np.lexsort((np.abs(rel), seg))
+    first = np.searchsorted(seg[order], np.arange(n))
+    mid = np.minimum(first + (support.astype(int) // 2), max(seg.size - 1, 0))
+    mad = np.where(support > 0, 1.4826 * np.abs(rel[order][mid]), np.inf)
+    return SegmentPlanes(coef, support, share, rms, mad)
+
+
+def sensor_noise(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
+    """The capture's relative depth noise: 1.4826 times the median absolute difference between the inverse depth
+    and its mean over a ``win`` x ``win`` window (exact on a plane), over the pixels whose window is all valid,
+    scaled by that difference's standard deviation for white noise, relative to the inverse depth."""
+    inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0).astype(np.float32)
+    full = cv2.blur(valid.astype(np.float32), (win, win), borderType=cv2.BORDER_CONSTANT) > 1 - 1e-6
+    if not full.any():
+        return np.inf
+    mean = cv2.blur(inv, (win, win), borderType=cv2.BORDER_CONSTANT)
+    res = np.abs(inv[full] / mean[full] - 1.0)
+    return max(float(1.4826 * np.median(res) / np.sqrt(1.0 - 1.0 / win**2)), NOISE_FLOOR)
+
+
+def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: float = PLANE_TOL,
+                inliers: float = PLANE_INLIERS, min_support: int = PLANE_MIN_SUPPORT, reach: int = PLANE_REACH,
+                spread: float = PLANE_SPREAD, margin: float = PLANE_RANGE, noise_ratio: float = PLANE_NOISE,
+                seg_scale: int = 2, segments: np.ndarray | None = None) -> np.ndarray:
+    """The pixels of ``mask`` filled from their colour segment's plane where the capture shows it planar.
+
+    A crop of ``rgb`` round ``mask`` (``reach`` px beyond it) is segmented (:func:`colour_segments`); each
+    segment's support is its valid pixels within ``reach`` px of ``mask``; a plane in inverse depth is fitted
+    to it (:func:`fit_segment_planes`; on every other row and column of the support: a quarter of the work).
+    A segment's hole pixels take its plane where: at least ``min_support`` support pixels, at least ``inliers``
+    of them within ``tol`` relative residual of the plane (a segment across two surfaces fails this), the
+    residual's robust scale at most ``noise_ratio`` times the capture's own noise (:func:`sensor_noise`, on the
+    crop: a curved surface fails this where its curvature shows above the noise, as on the tissue sample
+    against a Kinect's planar walls), the hole pixel within Mahalanobis distance ``spread`` of the support
+    pixels' mean and covariance in the image (no extrapolation far beyond the support), and the plane's
+    inverse depth there within the support's range widened by ``margin`` of it on either side.
+
+    Parameters
+    ----------
+    depth : float (H, W) metres, NaN = invalid.
+    rgb : uint8 (H, W, 3).
+    mask : bool (H, W) the pixels to fill.
+    tol, inliers, min_support, reach, noise_ratio, spread, margin : the tests above (defaults: the module's
+        ``PLANE_*`` constants).
+    seg_scale : the segmentation's reduction (:func:`colour_segments`).
+    segments : int (H, W) labels to use instead of segmenting (tests).
+
+    Returns
+    -------
+    float32 (H, W): the plane's depth on the pixels of ``mask`` it fills, NaN elsewhere.
+    """
+    h, w = depth.shape
+    out = np.full((h, w), np.nan, dtype=np.float32)
+    if not mask.any():
+        return out
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h)
+    c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
+    d = depth[r0:r1, c0:c1]
+    m = mask[r0:r1, c0:c1]
+    if segments is None:
+        seg = colour_segments(rgb[r0:r1, c0:c1], scale=seg_scale)
+    else:
+        seg = segments[r0:r1, c0:c1].astype(np.int32)
+    n = int(seg.max()) + 1
+    valid = np.isfinite(d) & (d > 0) & ~m
+    near = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) <= reach
+    cut = np.zeros(n, dtype=bool)
+    cut[seg[m]] = True
+    sup = valid & near & cut[seg]
+    sup[1::2, :] = False  # every other row and column: a quarter of the pixels, the same planes
+    sup[:, 1::2] = False
+    if not sup.any():
+        return out
+    hh, ww = d.shape
+    norm = max(hh, ww) / 2.0
+    vv, uu = np.nonzero(sup)
+    su = (uu - ww / 2.0) / norm
+    sv = (vv - hh / 2.0) / norm
+    ss = seg[sup]
+    inv = 1.0 / d[sup].astype(np.float64)
+    planes = fit_segment_planes(inv, su, sv, ss, n, tol)
+    noise = sensor_noise(d, valid)
+    good = (planes.support >= min_support) & (planes.inliers >= inliers) & (planes.scale <= noise_ratio * noise) & cut
+    if not good.any():
+        return out
+    # the support's spread in the image and its inverse-depth range, per segment
+    cnt = np.maximum(planes.support, 1)
+    mu = np.bincount(ss, weights=su, minlength=n) / cnt
+    mv = np.bincount(ss, weights=sv, minlength=n) / cnt
+    cuu = np.bincount(ss, weights=(su - mu[ss]) ** 2, minlength=n) / cnt + 1e-6
+    cvv = np.bincount(ss, weights=(sv - mv[ss]) ** 2, minlength=n) / cnt + 1e-6
+    cuv = np.bincount(ss, weights=(su - mu[ss]) * (sv - mv[ss]), minlength=n) / cnt
+    lo = np.full(n, np.inf)
+    hi = np.full(n, -np.inf)
+    np.minimum.at(lo, ss, inv)
+    np.maximum.at(hi, ss, inv)
+    hv, hu = np.nonzero(m)
+    hs = seg[m]
+    take = good[hs]
+    hv, hu, hs = hv[take], hu[take], hs[take]
+    qu = (hu - ww / 2.0) / norm
+    qv = (hv - hh / 2.0) / norm
+    du, dv = qu - mu[hs], qv - mv[hs]
+    det = cuu[hs] * cvv[hs] - cuv[hs] ** 2
+    maha = (cvv[hs] * du**2 - 2 * cuv[hs] * du * dv + cuu[hs] * dv**2) / np.maximum(det, 1e-12)
+    pred = planes.coef[hs, 0] + planes.coef[hs, 1] * qu + planes.coef[hs, 2] * qv
+    span = (hi - lo)[hs]
+    sane = (pred > 0) & (pred >= lo[hs] - margin * span) & (pred <= hi[hs] + margin * span)
+    ok = (maha <= spread**2) & sane
+    out[r0 + hv[ok], c0 + hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
+    return out
