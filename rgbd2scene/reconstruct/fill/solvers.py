@@ -433,8 +433,8 @@ def _spd_solve(A: sparse.csc_matrix, b: np.ndarray) -> np.ndarray:
     """Solve A x = b for a symmetric positive definite A: SuperLU with a minimum degree ordering of A + A^T
     and the diagonal as pivots (no row exchanges: an SPD matrix needs none).
 
-    The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.38 s
-    against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.47 s; the solution agrees to 1e-10
+    The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.40 s
+    against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.49 s; the solution agrees to 1e-10
     (float32 fills within an ulp). Looked at and not used: a geometric nested dissection of the pixels
     (separators two pixels wide, the stencil's reach) with SuperLU's natural order, 0.25 s but 0.04-0.06 s to
     order in Python; other ``relax`` and ``panel_size`` settings (within the noise)."""
