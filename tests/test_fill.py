@@ -119,6 +119,29 @@ def test_biharmonic_is_exact_on_a_plane():
     np.testing.assert_allclose(out[mask], truth[mask], rtol=1e-5)
 
 
+def test_thin_plate_with_diagonal_pivots_equals_the_partial_pivoting_solve(monkeypatch):
+    # _spd_solve (a minimum degree ordering of A + A^T, the diagonal as pivots) against SuperLU's default (COLAMD,
+    # partial pivoting), on holes, a band at the image edge (a free boundary) and a hole crossed by a one-pixel
+    # line of valid depth (the near-degenerate case the Tikhonov term is there for)
+    from scipy.sparse.linalg import spsolve
+
+    from rgbd2scene.reconstruct.fill import solvers
+
+    truth = smooth_surface()
+    mask = blobs(4, n=5, r=6)
+    mask[:, :12] = True
+    crossed = disc(60, 100, 14)
+    crossed[60, :] = False
+    mask |= crossed
+    depth = np.where(mask, np.nan, truth).astype(np.float32)
+    ours = fill_biharmonic(depth, mask)
+    monkeypatch.setattr(solvers, "_spd_solve", lambda a, b: spsolve(a, b))
+    ref = fill_biharmonic(depth, mask)
+    assert np.isfinite(ours[mask]).all()
+    np.testing.assert_allclose(ours[mask], ref[mask], rtol=1e-6)
+    assert np.array_equal(ours[~mask], depth[~mask])
+
+
 def test_row_background_takes_the_far_end_of_each_run():
     truth, _ = step_scene()
     depth = truth.copy()

@@ -126,16 +126,21 @@ What ``auto`` does
    extrapolation, not an enclosed hole: which continuation fits (a thin plate carrying the rim's slope on,
    a membrane levelling off where the rim is noisy, the colour where the band holds another surface) is
    what the surface just inside it shows. The harmonic and NYU fills of the band are solved from the valid
-   depth beside the holes' solves (in the same thread pool), the NYU one only on the stretches that take
-   it and the band within half a stretch of them (32 px; on the whole band: the same figures within 0.001,
-   0.1 s more), the evidence beside :func:`choose_per_hole` (on two cores: TUM frame about 0.7 -> 1.0 s
+   depth beside the holes' solves (in the same thread pool), each only on the stretches that take it and
+   the band beside them: within half a stretch for the NYU fill (32 px; on the whole band: the same figures
+   within 0.001, 0.1 s more), a whole stretch for the harmonic one (the membrane's free end at the cut
+   reaches further: half a stretch cost tuning rows up to 0.014; the whole band: the same figures, TUM frame
+   0.06 s CPU more), the evidence beside :func:`choose_per_hole` (on two cores: TUM frame about 0.7 -> 1.0 s
    wall, see the results file's session 9 notes; all of ``auto``'s solves queued in one pool of a thread per
    core, the thin plate and the holes' NYU fill started ahead of the evidence: about 0.75 s again, the
-   same output). On the tuning split (seeds 0-7, 77 rows): geometric mean
-   0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM blobs 6 1.45 -> 1.16: band 14.8 ->
-   1.6 mm against the NYU colorization's 4.3; TUM transplant 7 1.24 -> 1.02, band 99.2 -> 79.7 mm against
-   77.1; tissue transplant 0 1.10 -> 1.01; worse: tissue transplant 1 1.02 -> 1.05, TUM transplant 1 1.05
-   -> 1.06, band 42.0 -> 74.9 mm where the NYU fill carried a near object into the band that the strip did
+   same output; session 10, the sparse LU factorisations ordered by minimum degree
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_biharmonic`) and the band's harmonic fill cut to its
+   stretches: CPU 1.4-1.5 -> 1.2-1.3 s, wall 0.8-0.9 -> 0.7-0.8 s at a load of 3.4). On the tuning split
+   (seeds 0-7, 77 rows): geometric mean 0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM
+   blobs 6 1.45 -> 1.16: band 14.8 -> 1.6 mm against the NYU colorization's 4.3; TUM transplant 7 1.24 ->
+   1.02, band 99.2 -> 79.7 mm against 77.1; tissue transplant 0 1.10 -> 1.01; worse: tissue transplant 1 1.02
+   -> 1.05, TUM transplant 1 1.05 -> 1.06, band 42.0 -> 74.9 mm where the NYU fill carried a near object into
+   the band that the strip did
    not show). On masks of neither split it is neutral: the held-out split (seeds 20-27,
    ``benchmarks/results/fill_heldout.md``) 17 -> 18 of 77 rows above 1.10, 0.782 -> 0.783; the report
    split 21 -> 20 of 101 rows, 0.713 -> 0.709. Kept because it is not worse on either and decides from the
@@ -430,10 +435,11 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
             jobs["biharmonic"] = (rest | edge, across)
         ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
         for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
-            where = edge
-            if b == "nyu_colorization":  # the costly solve: only where taken, with half a stretch beside it
-                taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
-                where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= BAND_STRETCH // 2)
+            # only where taken, and the band beside it: half a stretch for the costly NYU fill, a whole one for the
+            # membrane, whose free end at the cut reaches further (half a stretch: tuning rows up to 0.014 worse)
+            taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
+            beside = BAND_STRETCH if b == "harmonic" else BAND_STRETCH // 2
+            where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= beside)
             jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
         for name in list(early):  # the same masks (the thin plate's rest | edge is rest where there is no band)
             if name in jobs:
@@ -636,7 +642,8 @@ BAND_NAMES = list(BAND_CANDIDATES)
 #: The border band chooses its fill per stretch of this many px along its edge (:func:`choose_band`).
 BAND_STRETCH = 64
 #: The band's evidence is solved at 1 / this resolution: at full resolution it chose about as well on the tuning split
-#: (geometric mean 0.756 against 0.755, measured with the band's fills solved after the holes') and cost 1 s more.
+#: (geometric mean 0.756 against 0.755, measured with the band's fills solved after the holes') and cost 1 s more; at
+#: quarter resolution (session 10) 0.14 s CPU less on the TUM frame, but held-out 0.783 -> 0.786, tuning 0.753 -> 0.753.
 BAND_SCALE = 2
 
 

@@ -346,7 +346,10 @@ def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np
     diag_k = 1.0 + alpha
     upper = ii < nu
     uu = upper & (jj < nu)
-    lu = splu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)))
+    # the unknowns' block is structurally symmetric and diagonally dominant: a minimum degree ordering of A + A^T,
+    # diagonal pivots (TUM frame: 1.4M entries in L + U against COLAMD's 2.1M)
+    lu = splu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)), permc_spec="MMD_AT_PLUS_A",
+              diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
     uk = upper & (jj >= nu)
     A_uk = sparse.csr_matrix((vv[uk], (ii[uk], jj[uk] - nu)), shape=(nu, n - nu))
 
@@ -426,6 +429,19 @@ def fill_nyu_colorization(
     return _finish(depth, mask, x, nodes & mask)
 
 
+def _spd_solve(A: sparse.csc_matrix, b: np.ndarray) -> np.ndarray:
+    """Solve A x = b for a symmetric positive definite A: SuperLU with a minimum degree ordering of A + A^T
+    and the diagonal as pivots (no row exchanges: an SPD matrix needs none).
+
+    The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.40 s
+    against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.49 s; the solution agrees to 1e-10
+    (float32 fills within an ulp). Looked at and not used: a geometric nested dissection of the pixels
+    (separators two pixels wide, the stencil's reach) with SuperLU's natural order, 0.25 s but 0.04-0.06 s to
+    order in Python; other ``relax`` and ``panel_size`` settings (within the noise)."""
+    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    return lu.solve(b)
+
+
 def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.ndarray:
     """Minimise the squared graph Laplacian (thin-plate energy) over the unknown pixels.
 
@@ -466,7 +482,7 @@ def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.n
     b = -(Bu.T @ (Bk @ xk))
     # a tiny Tikhonov term keeps degenerate holes (e.g. a one-pixel-wide line of constraints) solvable
     A = A + sparse.identity(A.shape[0], format="csc") * 1e-9
-    x = spsolve(A, b)
+    x = _spd_solve(A, b)
     out = np.zeros(shape)
     out[tr[is_u], tc[is_u]] = x
     return out
@@ -480,7 +496,8 @@ def fill_biharmonic(
     Agrees with ``skimage.restoration.inpaint_biharmonic`` (to 1e-5 relative on a test surface) and
     takes about as long as it does with ``split_into_regions=True`` (0.10 s against 0.12 s for the
     TUM frame's holes); this version also takes ``exclude`` and leaves non-mask holes out of the
-    system (a free boundary there) instead of needing values in them.
+    system (a free boundary there) instead of needing values in them. The system is symmetric positive
+    definite: :func:`_spd_solve`.
 
     Parameters
     ----------
