@@ -18,6 +18,7 @@ from rgbd2scene.reconstruct.fill import (
     fill_biharmonic,
     fill_colorization,
     fill_depth,
+    fill_guided_thin_plate,
     fill_harmonic,
     fill_inpaint,
     fill_nyu_colorization,
@@ -895,6 +896,46 @@ def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harm
         e_nyu = np.abs(nyu[side] - truth[side]).mean()
         e_harm = np.abs(harm[side] - truth[side]).mean()
         assert e_nyu < 0.5 * e_harm, (e_nyu, e_harm)
+
+
+def test_guided_thin_plate_is_exact_on_a_plane_whatever_the_colour():
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    truth = (1.0 / (0.5 + 0.001 * u - 0.0007 * v)).astype(np.float32)  # a plane: affine inverse depth
+    mask = blobs(3, n=4, r=8)
+    depth = truth.copy()
+    depth[mask] = np.nan
+    rng = np.random.default_rng(5)
+    texture = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)  # every coupling weighted differently
+    for rgb in (None, np.full((H, W, 3), 128, np.uint8), texture):
+        out = fill_guided_thin_plate(depth, rgb)
+        np.testing.assert_allclose(out[mask], truth[mask], rtol=1e-5)
+        assert np.array_equal(out[~mask], depth[~mask])  # valid pixels unchanged
+
+
+def test_guided_thin_plate_does_not_carry_a_slope_across_a_colour_edge():
+    # left of column 80 a slanted surface, right of it a flatter one behind a step, each its own colour: the
+    # plain thin plate carries the left slope into the right part of the hole (and back); the guided one keeps
+    # each side's own plane, as the colorization does, and continues each side's slope as it does not
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    left = u < 80
+    truth = (1.0 / np.where(left, 0.5 + 0.006 * u, 1.0 + 0.001 * v)).astype(np.float32)
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[left] = (40, 90, 150)
+    rgb[~left] = (200, 170, 60)
+    rng = np.random.default_rng(2)
+    rgb = np.clip(rgb + rng.integers(-3, 4, rgb.shape), 0, 255).astype(np.uint8)  # some sensor noise
+    hole = (np.abs(u - 80) < 20) & (np.abs(v - 60) < 25)
+    depth = truth.copy()
+    depth[hole] = np.nan
+    guided = fill_guided_thin_plate(depth, rgb)
+    plate = fill_biharmonic(depth)
+    nyu = fill_nyu_colorization(depth, rgb)
+    for side in (hole & left, hole & ~left):
+        e_guided = np.abs(guided[side] - truth[side]).mean()
+        assert e_guided < 0.2 * np.abs(plate[side] - truth[side]).mean()
+        assert e_guided < 0.2 * np.abs(nyu[side] - truth[side]).mean()
+        assert e_guided < 1e-3  # metres
+    assert np.array_equal(guided[~hole], depth[~hole])
 
 
 def test_nyu_colorization_leaves_other_invalid_pixels_out_and_keeps_unreachable_holes_empty():

@@ -13,6 +13,7 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_background,
     fill_biharmonic,
     fill_colorization,
+    fill_guided_thin_plate,
     fill_harmonic,
     fill_inpaint,
     fill_nyu_colorization,
@@ -21,5 +22,6 @@ from rgbd2scene.reconstruct.fill.solvers import (
 
 __all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "clip_to_rim", "clip_to_surround",
            "fill_background",
-           "fill_biharmonic", "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint",
-           "fill_nyu_colorization", "fill_row_background", "highlight_pixels", "shadow_pixels", "step_runs"]
+           "fill_biharmonic", "fill_colorization", "fill_depth", "fill_guided_thin_plate", "fill_harmonic",
+           "fill_inpaint", "fill_nyu_colorization", "fill_row_background", "highlight_pixels", "shadow_pixels",
+           "step_runs"]
