@@ -684,7 +684,7 @@ def _two_rooms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return truth, rgb, left, right
 
 
-def test_each_wide_hole_takes_the_fill_its_own_copies_favour():
+def test_wide_holes_take_the_mean_of_the_nyu_colorization_and_the_guided_thin_plate():
     truth, rgb, left, right = _two_rooms()
     holes = left | right
     depth = np.where(holes, np.nan, truth).astype(np.float32)
@@ -692,15 +692,16 @@ def test_each_wide_hole_takes_the_fill_its_own_copies_favour():
     wide = np.ones(n + 1, bool)
     wide[0] = False
     choice = choose_per_hole(depth, rgb, labels, HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool)))
-    on_left, on_right = NAMES[choice[labels[60, 40]]], NAMES[choice[labels[60, 122]]]
-    assert on_left == "biharmonic", on_left  # the blotches would mislead colour guidance
-    assert "colorization" in on_right and on_right != "nyu_colorization+biharmonic", on_right
+    assert {NAMES[k] for k in choice[1:]} == {"nyu_colorization+guided_thin_plate"}  # no choice for guided holes
     res = fill_depth(depth, rgb, "auto", sensor=SENSORS["none"])
+    assert res.stats["auto_pixels"] == {"nyu_colorization": int(holes.sum()), "guided_thin_plate": int(holes.sum())}
     error = lambda d, m: np.abs(d[m] - truth[m]).mean()  # noqa: E731
-    for single in (fill_biharmonic(depth), fill_nyu_colorization(depth, rgb)):
-        assert error(res.depth, holes) < 0.8 * error(single, holes)
-    assert error(res.depth, left) < 0.5 * error(fill_nyu_colorization(depth, rgb), left)
-    assert error(res.depth, right) < 0.5 * error(fill_biharmonic(depth), right)
+    nyu, plate = fill_nyu_colorization(depth, rgb), fill_biharmonic(depth)
+    # the slats: colour edges at the depth edges, where the thin plate overshoots and the colorization blurs
+    assert error(res.depth, right) < 0.6 * error(nyu, right)
+    assert error(res.depth, right) < 0.02 * error(plate, right)
+    # the blotched dome: colour misleads both colour-guided fills there, the guided thin plate less
+    assert error(res.depth, left) < error(nyu, left)
 
 
 def test_thin_strip_on_the_rim_of_a_hole_beyond_range_is_filled():
