@@ -11,6 +11,8 @@ toolbox's works on inverse depth, where a plane is affine in pixel coordinates; 
 ``fill_nyu_colorization`` the NYU Depth v2 toolbox's ``fill_depth_colorization`` itself: the whole image,
                           known pixels as a soft data term, one sparse solve, in depth (not inverse depth).
 ``fill_biharmonic``       thin-plate (biharmonic) fill: smooth, exact on planes.
+``fill_guided_thin_plate`` the thin plate with colour-weighted second differences: exact on planes, no slope
+                          carried across a colour edge.
 ``clip_to_rim``           each hole's fill bounded by its rim's depth range (a thin plate overshoots at steps).
 ``clip_to_surround``      each pixel's fill bounded by the depth range of the valid pixels around it, widened
                           by a margin (a thin plate extrapolated towards the image edge overshoots).
