@@ -15,6 +15,7 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_background,
     fill_biharmonic,
     fill_colorization,
+    fill_guided_thin_plate,
     fill_harmonic,
     fill_inpaint,
     fill_nyu_colorization,
@@ -23,6 +24,7 @@ from rgbd2scene.reconstruct.fill.solvers import (
 
 __all__ = ["FILL_METHODS", "FillResult", "HoleMap", "classify_holes", "clip_to_rim", "clip_to_surround",
            "fill_background",
-           "fill_biharmonic", "fill_colorization", "fill_depth", "fill_harmonic", "fill_inpaint",
-           "fill_nyu_colorization", "fill_row_background", "highlight_pixels", "planar_fill", "shadow_pixels",
+           "fill_biharmonic", "fill_colorization", "fill_depth", "fill_guided_thin_plate", "fill_harmonic",
+           "fill_inpaint", "fill_nyu_colorization", "fill_row_background", "highlight_pixels", "planar_fill",
+           "shadow_pixels",
            "step_runs"]

@@ -38,26 +38,51 @@ What ``auto`` does
    of the benchmark the row fill is twice as accurate as a smooth fill from the far side (harmonic,
    ``background``).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
-   2.5 % of the shorter side), highlights excepted, chosen per hole by evidence from the capture
-   (:func:`choose_per_hole`): copies of the hole's own shape are laid onto valid depth nearby (each
-   wholly on pixels at least :data:`COPY_CLEARANCE` px from any invalid one, so that a copy is enclosed
-   by valid depth as the hole is; :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`), filled with
-   each candidate of :data:`GUIDED` (all copies of all holes at once: one solve per base fill), and the
-   hole takes the candidate with the least mean absolute error on its own copies: the mean of the NYU
-   toolbox's colorization (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the
-   known pixels within :data:`NYU_REACH` px of the holes) and the biharmonic fill, the biharmonic fill,
-   or the NYU colorization. The mean is also the rule where no copy fits (a large hole seldom has room
-   for a whole copy) and wins ties. The biharmonic fill is clipped to the hole's rim depth range where
-   the hole bridges a step (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a thin plate
-   across a depth step overshoots beyond both sides, while on a smooth dome its curvature is the
-   surface's. Without RGB: the biharmonic fill. On the benchmark's tuning split (auto's all-pixel MAE
-   over the best of biharmonic, harmonic, NYU colorization and the project's colorization, geometric
-   mean over its rows) this step with the previous rule (the project's colorization averaged with the
-   biharmonic fill, for every such hole): 0.795, 7 of 23 rows above 1.10; with the NYU colorization in
-   the mean: 0.785, 4 rows; with the per-hole choice on the copies: 0.787, 3 rows. The evidence is
-   about neutral there; it is kept because it decides from the capture itself rather than from rules
-   tuned on two captures. Copies that may lie 40 % on pixels next to other holes (the earlier
-   ``hole_copies`` setting), choosing every hole's fill among six candidates, gave 0.875, 11 rows: such
+   2.5 % of the shorter side), highlights excepted, take the mean of the NYU toolbox's colorization
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the known pixels within
+   :data:`NYU_REACH` px of the holes) and the colour-guided thin plate
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_guided_thin_plate`: the thin plate's second
+   differences, each weighted down where the colour changes across it, so exact on planes whatever the
+   colours): it continues a surface's slope into the hole as the biharmonic fill does, but not across an
+   object's outline in the colour image, where the biharmonic fill carries one surface's slope into the
+   other's pixels; the NYU colorization beside it follows the colour too but levels slopes off. The guided
+   thin plate is clipped to each hole's rim depth range
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): where colour edges cut part of a hole loose
+   from its rim, that part is a thin plate with free edges and can overshoot (unclipped, tuning row tissue
+   transplant 0 went 1.00 -> 2.64 times the best reference: a hole at the image corner, 1.22 m against at
+   most 0.83 m of truth). Without RGB: the biharmonic fill (clipped where the hole bridges a step, as in
+   what follows). On the benchmark (auto's all-pixel MAE over the best of biharmonic, harmonic, NYU
+   colorization and the project's colorization, geometric mean over the rows; session 10, against the
+   previous rule, the per-hole choice below): tuning split (seeds 0-7, 77 rows) 0.753 -> 0.696, rows
+   above 1.10 14 -> 5, worst 1.37 -> 1.29, 35 rows better by more than 0.02 and 5 worse; held-out split
+   (seeds 20-27, 77 rows) 0.783 -> 0.719, 18 -> 10 rows, worst 2.09 -> 1.36, 39 better and 7 worse. Blobs
+   and large holes gain most (held-out TUM large 22 2.09 -> 0.74, TUM blobs 24 1.71 -> 1.25; tuning TUM
+   blobs 0 1.37 -> 0.90, TUM large 3 1.13 -> 0.67); worse: tissue large and transplant rows where the
+   colour misleads (held-out tissue large 26 1.13 -> 1.21, tissue transplant 26 1.11 -> 1.19). Not kept:
+   the per-hole choice on copies (below) among this mean, the biharmonic fill and the NYU colorization
+   (tuning 0.701, 8 rows; held-out 0.725, 12 rows: the copies' evidence cost what it chose), the guided
+   thin plate alone as that choice's default (tuning 0.725, 11 rows), it as a fourth candidate beside the
+   previous rule's three (tuning 0.740, 12 rows); the thin plate weighted by the toolbox's own affinities
+   (row-normalised, ``||(I - W) x||^2``): not exact on planes where a colour edge crosses a pixel's window,
+   and on textured surfaces, where those affinities vary from pixel to pixel, it bends freely (plain fills
+   of the tuning split's TUM large holes 4 to 15 times the best reference). The previous rule, for the
+   record (:func:`choose_per_hole` still makes this choice where :data:`GUIDED` holds more than one
+   candidate): chosen per hole by evidence from the capture: copies of the hole's own shape are laid onto
+   valid depth nearby (each wholly on pixels at least :data:`COPY_CLEARANCE` px from any invalid one, so
+   that a copy is enclosed by valid depth as the hole is;
+   :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`), filled with each candidate (all copies of all
+   holes at once: one solve per base fill), and the hole took the candidate with the least mean absolute
+   error on its own copies: the mean of the NYU colorization and the biharmonic fill, the biharmonic fill,
+   or the NYU colorization; the mean where no copy fits (a large hole seldom has room for a whole copy) and
+   on ties. The biharmonic fill is clipped to the hole's rim depth range where the hole bridges a step: a
+   thin plate across a depth step overshoots beyond both sides, while on a smooth dome its curvature is the
+   surface's. On the tuning split (then seeds 0-1, 23 rows) this step with the rule before it (the
+   project's colorization averaged with the biharmonic fill, for every such hole): 0.795, 7 of 23 rows
+   above 1.10; with the NYU colorization in the mean: 0.785, 4 rows; with the per-hole choice on the
+   copies: 0.787, 3 rows. The evidence was about neutral there; it was kept because it decides from the
+   capture itself rather than from rules tuned on two captures. Copies that may lie 40 % on pixels next
+   to other holes (the earlier ``hole_copies`` setting), choosing every hole's fill among six candidates,
+   gave 0.875, 11 rows: such
    a copy is half an extrapolation, where the membrane wins, not an enclosed hole (a wide ellipse on the
    tissue sample: 1.70 times the best reference against 1.00). Tried in session 9 and not kept: the ring of
    valid pixels round each hole (a quarter of its inscribed radius wide, at least 2 px) hidden and filled
@@ -206,6 +231,7 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_background,
     fill_biharmonic,
     fill_colorization,
+    fill_guided_thin_plate,
     fill_harmonic,
     fill_inpaint,
     fill_nyu_colorization,
@@ -410,14 +436,15 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
     edge = band & ~shadow
     across = stepped[labels] & rest
     traits = HoleTraits(stepped, wide, lit)
-    # the thin plate of holes and band and the holes' NYU colorization are the longest solves (TUM frame: 0.45 and
-    # 0.25 of 1.3 s CPU), and their inputs are known before any evidence: they start first, beside the evidence's
-    # solves, where the rule's own choice (before the evidence) takes them (a guided hole's mean; the thin plate
-    # for a wide hole without RGB); a result is used only if the evidence keeps its fill
+    # the thin plate of holes and band and the guided holes' fills (NYU colorization, colour-guided thin plate) are
+    # the longest solves, and their inputs are known before any evidence: they start first, beside the evidence's
+    # solves, where the rule's own choice (before the evidence) takes them (a guided hole's mean and the band's
+    # thin plate beside it; the thin plate for a wide hole without RGB); a result is used only if the evidence
+    # keeps its fill
     guided = (wide & ~lit)[1:].any()
-    ahead = {"biharmonic": (rest | edge, across)} if guided else {}
+    ahead = {"biharmonic": (rest | edge, across)} if guided and (edge.any() or rgb is None) else {}
     if guided and rgb is not None:
-        ahead["nyu_colorization"] = (rest, across)
+        ahead.update({b: (rest, across) for b in CANDIDATES[GUIDED[0]]})
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
             ThreadPoolExecutor(max_workers=1) as side:
         early = _submit_fills(solves, out, rgb, ahead)
@@ -430,6 +457,8 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
         needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
         jobs = {name: (rest, across) for name in sorted(needed)}
+        if guided and edge.any():  # the band's thin plate, as when the guided holes' fill held the biharmonic one
+            jobs["biharmonic"] = (rest, across)
         joint = "biharmonic" in jobs and edge.any()
         if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
             jobs["biharmonic"] = (rest | edge, across)
@@ -482,12 +511,12 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
 CANDIDATES: dict[str, tuple[str, ...]] = {
     "harmonic": ("harmonic",),
     "biharmonic": ("biharmonic",),
-    "nyu_colorization+biharmonic": ("nyu_colorization", "biharmonic"),
-    "nyu_colorization": ("nyu_colorization",),
+    "nyu_colorization+guided_thin_plate": ("nyu_colorization", "guided_thin_plate"),
 }
 NAMES = list(CANDIDATES)
-#: The candidates a colour-guided hole may take on its copies' evidence (the rule's choice first).
-GUIDED = ("nyu_colorization+biharmonic", "biharmonic", "nyu_colorization")
+#: The candidates a colour-guided hole may take on its copies' evidence (the rule's choice first): one, no choice
+#: (module docstring, 2.: choosing among it, the biharmonic fill and the NYU colorization did worse).
+GUIDED = ("nyu_colorization+guided_thin_plate",)
 #: ``auto`` fills colour segments of guided holes from their plane where the capture shows them planar (step 2).
 PLANES = True
 #: Within this many px of a guided hole's rim its plane is blended in linearly from the hole's other fill (step 2).
@@ -513,12 +542,14 @@ class HoleTraits:
 
 def _base_fill(name: str, depth, rgb, mask, across) -> np.ndarray:
     """The base fill ``name`` of ``mask`` (one solve); the biharmonic one clipped to the rim's depth range on
-    ``across`` (a thin plate overshoots across a depth step)."""
+    ``across`` (a thin plate overshoots across a depth step), the colour-guided thin plate on every hole."""
     if name == "harmonic":
         return fill_harmonic(depth, mask)
     if name == "biharmonic":
         f = fill_biharmonic(depth, mask)
         return clip_to_rim(f, depth, across) if across.any() else f
+    if name == "guided_thin_plate":  # every hole clipped: a thin plate cut loose by colour edges may overshoot
+        return clip_to_rim(fill_guided_thin_plate(depth, rgb, mask), depth, mask)
     return fill_nyu_colorization(depth, rgb, mask, rtol=1e-7, reach=NYU_REACH)
 
 
@@ -567,8 +598,9 @@ def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int,
     at = np.zeros(labels.shape, dtype=bool)
     at[test] = guided[owner]
     jobs = {"harmonic": (test, across), "biharmonic": (test, across)}
-    if at.any():
-        jobs["nyu_colorization"] = (at, across & at)
+    if at.any() and len(GUIDED) > 1:  # the colour-guided fills only where there is a choice to make
+        for b in sorted({b for k in GUIDED for b in CANDIDATES[k]} - {"harmonic", "biharmonic"}):
+            jobs[b] = (at, across & at)
     fills = _base_fills(trial, rgb, jobs, pool)
     npx = np.bincount(owner, minlength=n + 1).astype(np.float64)
     for k, name in enumerate(NAMES):
@@ -591,9 +623,9 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     pooled; where none of them has a whole copy, over copies that lie 60 % on pixels 2 px from any
     invalid one (a thin ring round a hole beyond range has no room for a whole copy); harmonic where
     none fits at all. A colour-guided hole (wide or across a step, not a highlight, with RGB) takes the
-    candidate of :data:`GUIDED` with the least mean absolute error on its own copies, the mean of the
-    NYU colorization and the biharmonic fills where no copy fits or on a tie; without RGB, the
-    biharmonic fill.
+    first candidate of :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate);
+    where :data:`GUIDED` holds more than one, the one with the least mean absolute error on the hole's own
+    copies, the first where no copy fits or on a tie; without RGB, the biharmonic fill.
 
     Parameters
     ----------
