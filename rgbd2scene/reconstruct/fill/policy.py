@@ -3,201 +3,87 @@
 Methods (``FILL_METHODS``)
 --------------------------
 ``inpaint``, ``colorization``, ``nyu_colorization``, ``biharmonic``, ``background``: one solver of
-:mod:`rgbd2scene.reconstruct.fill.solvers` for every interior hole; ``auto`` (the default) chooses per
-hole and per hole row (below); ``none`` fills nothing. Whatever the method, the same pixels are filled
-(:func:`rgbd2scene.reconstruct.fill.holes.classify_holes`): every hole pixel on the captured surface.
-Interior holes are filled by the method; then the sensor's border band (and any hole that only the band
-separates from the surface) by a biharmonic fill from the surface and the filled interior, which
-continues the surface's slope to the image edge, bounded near the surface's depth range (4. below;
-``fill_border=False`` leaves the band NaN); ``auto``
-fills the band in the same thin-plate solve as the holes it gives the biharmonic fill, or, stretch by
-stretch, with the fill that predicted the valid strip just inside it best (4. below). On the
-bundled sample's own 8 px band it is about as good as a harmonic fill (0.83 mm against 0.78 mm; copying
-the nearest depth: 1.48 mm), and on the wider bands of real masks laid onto other captures (tune split
-of the benchmark) clearly better: worst transplanted row 1.15 times the best plain solver, not 1.51.
-Pixels outside the captured surface stay NaN. A hole's size plays no part.
+:mod:`rgbd2scene.reconstruct.fill.solvers` for every interior hole; ``auto`` (the default) chooses per hole
+(below); ``none`` fills nothing. Whatever the method, the same pixels are filled
+(:func:`~rgbd2scene.reconstruct.fill.holes.classify_holes`): every hole pixel on the captured surface; pixels
+outside it stay NaN. Interior holes are filled by the method, then the sensor's border band (and any hole
+that only the band separates from the surface) by a biharmonic fill from the surface and the filled
+interior, bounded near the surface's depth range (4.; ``fill_border=False`` leaves the band NaN).
 
 What ``auto`` does
 ------------------
+Every rule decides from the capture itself. The figures are the benchmark's
+(``benchmarks/bench_fill.py``: auto's all-pixel error over the best of the biharmonic, harmonic, NYU
+colorization and the project's colorization fills, geometric mean over the rows); what was tried and not
+kept, with its figures, is in ``benchmarks/results/fill.md`` (its notes, and the design record that this
+docstring held until session 10).
+
 1. **Occlusion shadows** (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_pixels`): a horizontal run of
-   hole pixels across a depth step, no wider than the shadow the sensor casts there, fx * b * (1/z_near
-   - 1/z_far) + 1 px, on the side the sensor casts it (``Sensor.shadow_baselines``), takes the depth of
-   its far end (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_row_background`): the shadow lies on
-   the far surface. Only as far as the shadow reaches from the far end
-   (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_split`): a pixel of the run beyond round(width) px
-   of it, whose colour is nearer the near end's, is a dropout on the near surface's rim and takes the
-   near end's depth (issue 17 section 2: the bundled sample's rims). A run holding a highlight
-   brighter than both its ends (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no
-   shadow: the colour camera sees the far surface in a shadow, not the light; it is filled as a hole
-   (2. or 3.). Time-of-flight sensors and
-   ``sensor="none"`` cast no shadows: nothing is filled this way. For the Kinect v1 model, in the real
-   TUM frame the step-bridging hole runs left of a near surface have a median width of 0.96 times the
-   7.5 cm bound (shadows), those right of it 3.6 times (mostly dropouts), so wider runs are not taken
-   for shadows (a slack of 2 or 3 px instead of 1 recognised more of the bundled sample's shadows but
-   took more of its dropouts for shadows, and lost more there than it gained). On the simulated shadows
-   of the benchmark the row fill is twice as accurate as a smooth fill from the far side (harmonic,
-   ``background``).
+   hole pixels across a depth step, no wider than the shadow the sensor casts there, fx * b * (1/z_near -
+   1/z_far) + 1 px, on the side the sensor casts it (``Sensor.shadow_baselines``), takes the depth of its
+   far end (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_row_background`): the shadow lies on the far
+   surface. Only as far as the shadow reaches (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_split`): a
+   pixel beyond it whose colour is nearer the near end's is a dropout on the near surface's rim and takes
+   the near end's depth. A run holding a highlight brighter than both its ends
+   (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no shadow (the colour camera sees the far
+   surface in a shadow, not the light) and is filled as a hole. Time-of-flight sensors and
+   ``sensor="none"`` cast no shadows. On the benchmark's simulated shadows the row fill is about 14 times
+   as accurate as the best reference (family geometric mean 0.07).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
-   2.5 % of the shorter side), highlights excepted, take the mean of the NYU toolbox's colorization
-   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the known pixels within
-   :data:`NYU_REACH` px of the holes) and the colour-guided thin plate
-   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_guided_thin_plate`: the thin plate's second
-   differences, each weighted down where the colour changes across it, so exact on planes whatever the
-   colours): it continues a surface's slope into the hole as the biharmonic fill does, but not across an
-   object's outline in the colour image, where the biharmonic fill carries one surface's slope into the
-   other's pixels; the NYU colorization beside it follows the colour too but levels slopes off. The guided
-   thin plate is clipped to each hole's rim depth range
-   (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): where colour edges cut part of a hole loose
-   from its rim, that part is a thin plate with free edges and can overshoot (unclipped, tuning row tissue
-   transplant 0 went 1.00 -> 2.64 times the best reference: a hole at the image corner, 1.22 m against at
-   most 0.83 m of truth). Without RGB: the biharmonic fill (clipped where the hole bridges a step, as in
-   what follows). On the benchmark (auto's all-pixel MAE over the best of biharmonic, harmonic, NYU
-   colorization and the project's colorization, geometric mean over the rows; session 10, against the
-   previous rule, the per-hole choice below): tuning split (seeds 0-7, 77 rows) 0.753 -> 0.696, rows
-   above 1.10 14 -> 5, worst 1.37 -> 1.29, 35 rows better by more than 0.02 and 5 worse; held-out split
-   (seeds 20-27, 77 rows) 0.783 -> 0.719, 18 -> 10 rows, worst 2.09 -> 1.36, 39 better and 7 worse. Blobs
-   and large holes gain most (held-out TUM large 22 2.09 -> 0.74, TUM blobs 24 1.71 -> 1.25; tuning TUM
-   blobs 0 1.37 -> 0.90, TUM large 3 1.13 -> 0.67); worse: tissue large and transplant rows where the
-   colour misleads (held-out tissue large 26 1.13 -> 1.21, tissue transplant 26 1.11 -> 1.19). Not kept:
-   the per-hole choice on copies (below) among this mean, the biharmonic fill and the NYU colorization
-   (tuning 0.701, 8 rows; held-out 0.725, 12 rows: the copies' evidence cost what it chose), the guided
-   thin plate alone as that choice's default (tuning 0.725, 11 rows), it as a fourth candidate beside the
-   previous rule's three (tuning 0.740, 12 rows); the thin plate weighted by the toolbox's own affinities
-   (row-normalised, ``||(I - W) x||^2``): not exact on planes where a colour edge crosses a pixel's window,
-   and on textured surfaces, where those affinities vary from pixel to pixel, it bends freely (plain fills
-   of the tuning split's TUM large holes 4 to 15 times the best reference). The previous rule, for the
-   record (:func:`choose_per_hole` still makes this choice where :data:`GUIDED` holds more than one
-   candidate): chosen per hole by evidence from the capture: copies of the hole's own shape are laid onto
-   valid depth nearby (each wholly on pixels at least :data:`COPY_CLEARANCE` px from any invalid one, so
-   that a copy is enclosed by valid depth as the hole is;
-   :func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`), filled with each candidate (all copies of all
-   holes at once: one solve per base fill), and the hole took the candidate with the least mean absolute
-   error on its own copies: the mean of the NYU colorization and the biharmonic fill, the biharmonic fill,
-   or the NYU colorization; the mean where no copy fits (a large hole seldom has room for a whole copy) and
-   on ties. The biharmonic fill is clipped to the hole's rim depth range where the hole bridges a step: a
-   thin plate across a depth step overshoots beyond both sides, while on a smooth dome its curvature is the
-   surface's. On the tuning split (then seeds 0-1, 23 rows) this step with the rule before it (the
-   project's colorization averaged with the biharmonic fill, for every such hole): 0.795, 7 of 23 rows
-   above 1.10; with the NYU colorization in the mean: 0.785, 4 rows; with the per-hole choice on the
-   copies: 0.787, 3 rows. The evidence was about neutral there; it was kept because it decides from the
-   capture itself rather than from rules tuned on two captures. Copies that may lie 40 % on pixels next
-   to other holes (the earlier ``hole_copies`` setting), choosing every hole's fill among six candidates,
-   gave 0.875, 11 rows: such
-   a copy is half an extrapolation, where the membrane wins, not an enclosed hole (a wide ellipse on the
-   tissue sample: 1.70 times the best reference against 1.00). Tried in session 9 and not kept: the ring of
-   valid pixels round each hole (a quarter of its inscribed radius wide, at least 2 px) hidden and filled
-   from beyond it, the hole taking the biharmonic fill or the NYU colorization alone where that beat the
-   mean by 25 % on its ring. On the tuning holes (seeds 0-7) the ring ranks the biharmonic fill against
-   the NYU colorization as the hole itself does with a rank correlation of 0.27 where the copies above
-   give 0.05 (no information; shrunk copies 0.21, copies lying 60 % on free pixels 0.06), and the tuning
-   split went 0.761 -> 0.750, 15 -> 13 of 77 rows above 1.10, worst 1.45 -> 1.30, at the same cost (the
-   rings are small solves, the holes left out); but on the report split 21 -> 24 of 101 rows above 1.10,
-   geometric mean 0.713 -> 0.717: it fixed blobs rows (Redwood0 blobs 10 1.22 -> 0.83, Redwood3 blobs 12
-   1.73 -> 1.36, TUM blobs 10 1.40 -> 1.18) and broke as many (Redwood0 large 10 1.00 -> 1.51, Redwood0
-   blobs 11 1.13 -> 1.50, Redwood3 blobs 11 1.08 -> 1.45, TUM blobs 11 0.97 -> 1.28): too weak evidence for
-   a hard choice; on held-out seeds 20-27 of the tuning captures it changed nothing (0.782 -> 0.782, 16 ->
-   17 rows; ``benchmarks/results/fill.md``, session 9 notes). Highlights are not guided by colour: a hole at least
-   half of whose pixels are bright, unsaturated and brighter than the surface around it
-   (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) gets the smooth fill of 3. below,
-   whatever its width. Its colour is the light's, not the surface's, and a uniform white patch matches
-   whatever white surface lies next to it (the TUM frame's desk: tuning row 3.31 -> 1.18 times the
-   best plain solver). Brighter than its rim, and not merely bright: a hole in a white wall is as
-   bright as the wall around it, and colour helps there (a rule on brightness alone took the Redwood
-   frames' walls for highlights). **Planes** then replace that fill where the capture shows a plane
+   2.5 % of the shorter side), highlights excepted ("guided" holes): the mean of the NYU toolbox's
+   colorization (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the known pixels
+   within :data:`NYU_REACH` px of the holes) and the colour-guided thin plate
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_guided_thin_plate`). The thin plate continues a
+   surface's slope into the hole, exact on planes, but its couplings fall away where the colour changes, so
+   it does not carry one surface's slope across an object's outline as the plain biharmonic fill does; the
+   colorization follows the colour too but levels slopes off. The guided thin plate is clipped to each
+   hole's rim depth range (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a part of a hole that
+   colour edges cut loose from its rim is a plate with free edges and can overshoot. **Planes** then
+   replace that fill where the capture shows a plane
    (:func:`~rgbd2scene.reconstruct.fill.planes.planar_fill`): the colour image round the guided holes is
-   cut into Felzenszwalb segments (at 1 / :data:`PLANE_SCALE` resolution), each segment a hole cuts gets a
-   plane in inverse depth (1/z affine in the pixel coordinates) fitted robustly to its valid pixels within
-   40 px of the holes, and its hole pixels take the plane where 80 % of that support lies within 1 % of
-   it, the residual's robust scale is at most twice the capture's own noise (measured on the crop: the
-   inverse depth against its 7x7 mean), the pixel lies within the support's spread (Mahalanobis distance
-   2.5) and the plane there within the support's depth range (widened by a quarter of it). Walls, floors
-   and desk tops seen by a Kinect pass; the tissue sample's curved surface, whose curvature shows above
-   its small noise, mostly does not (tuning split: 1 % of the guided pixels of its large holes, 9 % of its
-   blobs and transplanted masks, where the rows got better; the TUM frame 9-14 %, its own black and far
-   holes included; without the noise test 66-80 % of the tissue sample's large holes, 2-3 times the
-   error). Within :data:`PLANE_RAMP` px of the rim the
-   plane is blended in linearly from the fill above, which is close to its data there. The evidence is
-   the capture's own (the residual against the noise), not the benchmark's. On the tuning split (seeds
-   0-7): geometric mean 0.753 -> 0.731, rows above 1.10 14 -> 10, worst 1.37 -> 1.36 (TUM large 0 0.97 ->
-   0.75, 3 1.13 -> 0.93, TUM blobs 4 1.15 -> 0.74), no row worse by more than 0.02; on the held-out split
-   (seeds 20-27) 0.783 -> 0.762, 18 -> 15 rows, worst 2.09 -> 1.79 (TUM large 22), none worse either.
-   Tried and not kept: the plane replacing the fill outright, no blend at the rim (segmentation at half
-   resolution: tuning 0.735, 11 rows; held-out 0.771, 18 rows: TUM transplanted masks 1.04 -> 1.13, where
-   next to a thin hole's rim the smooth fills are closer to their data than a plane fitted 40 px round),
-   a 16 px blend (0.735, 8 rows; 0.767, 15), a test of curvature by a quadratic fit beside the plane (its
-   residual, or the bulge it predicts over the hole, did not tell the tissue sample from the TUM frame's
-   walls; the residual against the noise does: the plane's scale over the noise 0.9-2.0 on the TUM frame's
-   large accepted segments, 2.1-6.9 on the tissue sample's). The segmentation and the fits run in the
-   solvers' pool beside the solves (about 0.05 s CPU on the TUM frame's own holes).
-3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had
-   the smaller error on the copies of all these holes pooled (whole copies as in 2.; where none fits,
-   copies lying 60 % on pixels 2 px from any invalid one: a thin ring round a hole beyond range has
-   no room for a whole copy; harmonic where none fits at all). Harmonic averages a sensor's noise;
-   biharmonic is exact on smooth noise-free depth (depth from CT or a renderer), so the depth itself
-   decides rather than the sensor setting. The choice is made once per image: noise is the sensor's,
-   the same across the image, and choosing per hole did worse on the tuning split (its captures with
-   the colour removed: 0.726 pooled against 0.731 per hole; earlier, with each hole's error pulled
-   towards the image's by 200 px' worth, also worse). Tried and not used: dropping the colour
-   guidance for holes whose pixels are merely bright and unsaturated: on a report run it also took the
-   white walls of the Redwood frames for highlights (blobs rows 1.30 -> 2.12), hence the test against
-   the hole's rim in 2.
-4. **The border band** (shadows in it excepted), chosen per stretch of 64 px along its edge by evidence
-   from the capture (:func:`choose_band`): the strip of valid depth just inside each stretch, the band's
-   own shape moved inward by its width (:func:`band_strips`), is hidden, band and strips are filled from
-   the rest with the biharmonic, the harmonic and the NYU colorization fill (one solve each, at half
-   resolution: :data:`BAND_SCALE`, clipped as below), and each stretch takes the candidate of
-   :data:`BAND_CANDIDATES` (those three and the mean of the NYU colorization and the biharmonic fill) with
-   the least error on its strip; the thin plate on a tie or where the strip is empty. A band is an
-   extrapolation, not an enclosed hole: which continuation fits (a thin plate carrying the rim's slope on,
-   a membrane levelling off where the rim is noisy, the colour where the band holds another surface) is
-   what the surface just inside it shows. The harmonic and NYU fills of the band are solved from the valid
-   depth beside the holes' solves (in the same thread pool), each only on the stretches that take it and
-   the band beside them: within half a stretch for the NYU fill (32 px; on the whole band: the same figures
-   within 0.001, 0.1 s more), a whole stretch for the harmonic one (the membrane's free end at the cut
-   reaches further: half a stretch cost tuning rows up to 0.014; the whole band: the same figures, TUM frame
-   0.06 s CPU more), the evidence beside :func:`choose_per_hole` (on two cores: TUM frame about 0.7 -> 1.0 s
-   wall, see the results file's session 9 notes; all of ``auto``'s solves queued in one pool of a thread per
-   core, the thin plate and the holes' NYU fill started ahead of the evidence: about 0.75 s again, the
-   same output; session 10, the sparse LU factorisations ordered by minimum degree
-   (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_biharmonic`) and the band's harmonic fill cut to its
-   stretches: CPU 1.4-1.5 -> 1.2-1.3 s, wall 0.8-0.9 -> 0.7-0.8 s at a load of 3.4). On the tuning split
-   (seeds 0-7, 77 rows): geometric mean 0.761 -> 0.753, rows above 1.10 15 -> 14, worst 1.45 -> 1.37 (TUM
-   blobs 6 1.45 -> 1.16: band 14.8 -> 1.6 mm against the NYU colorization's 4.3; TUM transplant 7 1.24 ->
-   1.02, band 99.2 -> 79.7 mm against 77.1; tissue transplant 0 1.10 -> 1.01; worse: tissue transplant 1 1.02
-   -> 1.05, TUM transplant 1 1.05 -> 1.06, band 42.0 -> 74.9 mm where the NYU fill carried a near object into
-   the band that the strip did
-   not show). On masks of neither split it is neutral: the held-out split (seeds 20-27,
-   ``benchmarks/results/fill_heldout.md``) 17 -> 18 of 77 rows above 1.10, 0.782 -> 0.783; the report
-   split 21 -> 20 of 101 rows, 0.713 -> 0.709. Kept because it is not worse on either and decides from the
-   capture, not from rules tuned on two captures. Tried and not kept: the evidence at full resolution
-   (0.756, 16 rows, about 1 s more), the
-   strip hidden with the band left out of its solves (full resolution: 0.759, 16 rows), the band's
-   harmonic and NYU fills solved only on the stretches that chose them, nothing beside them (measured with
-   the 20 % margin below: 15 -> 19 rows, tissue transplant 5 1.05 -> 1.22), another fill only where it
-   beat the thin plate on the strip by 20 % (0.758, 15 rows: loses TUM transplant 7's gain). The thin
-   plate itself is in the biharmonic solve of the holes of 2. and 3. that take the biharmonic fill, as
-   unknowns beside them, rather than extended afterwards from their fills with the band left open while
-   they were solved (where no hole takes it, the band is extended last as for the other methods). A wide
-   band beside a wide hole is one surface to continue: filled in turn, the holes' thin plate ends free at
-   the band and the band's then continues from that edge. On the tuning split (then seeds 0-1, session 7):
-   geometric mean 0.787 -> 0.782, 3 rows above 1.10 as before, worst 1.37 -> 1.36 (TUM transplant 0: 0.94
-   -> 0.83; tissue transplant 0: 1.09 -> 1.10); on the report split, run after the choice, 24 -> 23 of 101
-   rows above 1.10 (``benchmarks/results/fill.md``). Tried on the tuning split and not kept: the band by a
-   harmonic fill (0.811, 5 rows: tissue transplant 0 1.58), the mean of the harmonic and the biharmonic
-   fill (0.789, 5 rows), the biharmonic fill clipped to the depth range of the band's rim (0.787, 4 rows)
-   or, per pixel, of the surface within the band's width (0.792, 4 rows), and a separate biharmonic solve
-   of band and all holes from the valid depth alone (0.786, 3 rows, one more solve). Whatever the method,
-   the band's fill is then clipped per pixel to the depth range of the valid pixels within the band's
-   width of it, widened by :data:`BAND_MARGIN` (10 %;
-   :func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards the
-   edge the thin plate carries inverse depth on towards zero (the benchmark's TUM frame under the SUN
-   mask: 18.7 m beside a far wall at 7.5 m, the worst report row). On the 8-seed tuning split only TUM
-   transplant 7 changes much (1.29 -> 1.24); without the 10 % room the tissue sample's transplanted bands,
-   whose slope does continue, lose (1.10 -> 1.21).
-``FillResult.method`` names the base fills used, e.g. ``"auto: background+biharmonic+nyu_colorization"``
-(``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two
-counts for both; ``planes``: the guided holes' pixels that took their segment's plane, which count for their
-other fill too).
+   cut into segments (Felzenszwalb, at 1 / :data:`PLANE_SCALE` resolution), each segment a hole cuts gets
+   a robust plane in inverse depth from its valid pixels within 40 px, and its hole pixels take the plane
+   where the residual is within twice the capture's own noise, the pixel within the support's spread and
+   the plane within its depth range; within :data:`PLANE_RAMP` px of the rim the plane is blended in from
+   the fill above, which is close to its data there. Walls, floors and desk tops pass; the tissue sample's
+   curved surface mostly does not. Without RGB: the biharmonic fill, clipped to the rim's range where the
+   hole bridges a step. Session 10 (both changes together, against session 9's per-hole choice among the
+   mean of the NYU colorization and the biharmonic fill, each alone, by copies of the hole laid on valid
+   depth, whose evidence proved no better than always taking the mean): tuning split 0.753 -> 0.680, rows
+   above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9; report split 0.705 -> 0.673, 18 -> 17
+   of 101. :func:`choose_per_hole` still chooses by copies where :data:`GUIDED` holds more than one
+   candidate. A highlight (a hole at least half of whose pixels are bright, unsaturated and brighter than
+   the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) is not guided by
+   colour, whatever its width: its colour is the light's, not the surface's (3.).
+3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
+   smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
+   invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
+   fits at all). Harmonic averages a sensor's noise; biharmonic is exact on smooth noise-free depth (CT, a
+   renderer), so the depth decides rather than the sensor setting. Once per image: the noise is the
+   sensor's, the same across the image (per hole did worse).
+4. **The border band** (shadows in it excepted), per stretch of :data:`BAND_STRETCH` px along its edge
+   (:func:`choose_band`): the strip of valid depth just inside each stretch (:func:`band_strips`) is
+   hidden, band and strips are filled from the rest with the biharmonic, harmonic and NYU colorization
+   fills (at 1 / :data:`BAND_SCALE` resolution), and each stretch takes the candidate of
+   :data:`BAND_CANDIDATES` with the least error on its strip; the thin plate on a tie or where the strip is
+   empty. A band is an extrapolation: which continuation fits (a thin plate carrying the rim's slope on, a
+   membrane levelling off where the rim is noisy, the colour where the band holds another surface) is what
+   the surface just inside it shows. The thin plate is solved jointly with the holes that take a thin plate
+   (a wide band beside a wide hole is one surface to continue); the band's harmonic and NYU fills only on
+   the stretches that take them and beside them. Whatever the fill, each band pixel is then clipped to the
+   depth range of the valid pixels within the band's width of it, widened by :data:`BAND_MARGIN`
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards the
+   edge a thin plate carries inverse depth on towards zero.
+
+Time: all of ``auto``'s solves share one pool of a thread per core, the longest (the thin plate of holes
+and band, the guided holes' fills) started before the evidence is in; the symmetric positive definite
+systems are factorised with a minimum degree ordering. On the TUM frame's own holes (640x480, 2 cores),
+session 10: 0.76-0.88 s wall, 1.30-1.51 s CPU (``benchmarks/results/fill.md``).
+
+``FillResult.method`` names the base fills used, e.g. ``"auto: background+nyu_colorization+guided_thin_plate"``
+(``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two counts
+for both; ``planes``: the guided holes' pixels that took their segment's plane, which count for their other
+fill too).
 """
 
 from __future__ import annotations
