@@ -902,18 +902,27 @@ def test_nyu_affinities_at_chosen_pixels_are_those_of_the_whole_image_to_the_bit
     assert np.allclose(part.sum(axis=0)[part.sum(axis=0) > 0], 1.0)
 
 
-def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harmonic():
+def _colour_edge_at_a_step(surface, noise: int):
+    """Two surfaces meeting at column 80 (``surface(u, v, left)`` gives the true depth), each its own colour
+    with +-``noise`` grey levels of sensor noise, and a 39x49 px hole across the edge: (truth, depth, rgb,
+    hole, left)."""
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     left = u < 80
-    truth = np.where(left, 1.0 + 0.002 * u + 0.001 * v, 1.8 - 0.001 * u + 0.0015 * v).astype(np.float32)
+    truth = surface(u, v, left).astype(np.float32)
     rgb = np.zeros((H, W, 3), np.uint8)
     rgb[left] = (40, 90, 150)
     rgb[~left] = (200, 170, 60)
     rng = np.random.default_rng(2)
-    rgb = np.clip(rgb + rng.integers(-6, 7, rgb.shape), 0, 255).astype(np.uint8)  # some sensor noise
+    rgb = np.clip(rgb + rng.integers(-noise, noise + 1, rgb.shape), 0, 255).astype(np.uint8)
     hole = (np.abs(u - 80) < 20) & (np.abs(v - 60) < 25)
     depth = truth.copy()
     depth[hole] = np.nan
+    return truth, depth, rgb, hole, left
+
+
+def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harmonic():
+    truth, depth, rgb, hole, left = _colour_edge_at_a_step(
+        lambda u, v, left: np.where(left, 1.0 + 0.002 * u + 0.001 * v, 1.8 - 0.001 * u + 0.0015 * v), noise=6)
     nyu = fill_nyu_colorization(depth, rgb)
     harm = fill_harmonic(depth)
     for side in (hole & left, hole & ~left):
@@ -940,17 +949,8 @@ def test_guided_thin_plate_does_not_carry_a_slope_across_a_colour_edge():
     # left of column 80 a slanted surface, right of it a flatter one behind a step, each its own colour: the
     # plain thin plate carries the left slope into the right part of the hole (and back); the guided one keeps
     # each side's own plane, as the colorization does, and continues each side's slope as it does not
-    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    left = u < 80
-    truth = (1.0 / np.where(left, 0.5 + 0.006 * u, 1.0 + 0.001 * v)).astype(np.float32)
-    rgb = np.zeros((H, W, 3), np.uint8)
-    rgb[left] = (40, 90, 150)
-    rgb[~left] = (200, 170, 60)
-    rng = np.random.default_rng(2)
-    rgb = np.clip(rgb + rng.integers(-3, 4, rgb.shape), 0, 255).astype(np.uint8)  # some sensor noise
-    hole = (np.abs(u - 80) < 20) & (np.abs(v - 60) < 25)
-    depth = truth.copy()
-    depth[hole] = np.nan
+    truth, depth, rgb, hole, left = _colour_edge_at_a_step(
+        lambda u, v, left: 1.0 / np.where(left, 0.5 + 0.006 * u, 1.0 + 0.001 * v), noise=3)
     guided = fill_guided_thin_plate(depth, rgb)
     plate = fill_biharmonic(depth)
     nyu = fill_nyu_colorization(depth, rgb)
