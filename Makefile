@@ -50,7 +50,11 @@ test: install
 # then the capture's digital twin (the scope at the capture's own camera) compared with the captured image.
 SAMPLE := data_samples/tissue
 CAPTURE := --rgb $(SAMPLE)/rgb.png --depth $(SAMPLE)/depth.png --camera $(SAMPLE)/camera.json
+# It starts afresh (its own outputs in $(DEMO_OUT) removed): after an update the scene differs, and render rightly
+# refuses to resume a dataset of another scene.
+DEMO_OUTPUTS := scene dataset verify.json error_maps twin_scene twin preview.png
 demo: install
+	rm -rf $(addprefix $(DEMO_OUT)/,$(DEMO_OUTPUTS))
 	$(BIN)/rgbd2scene scene $(CAPTURE) --instrument --deform breathing \
 	  --scope-calib data_samples/scope/calibration.yaml --path scan --frames 30 -o $(DEMO_OUT)/scene
 	$(BIN)/rgbd2scene render $(DEMO_OUT)/scene -o $(DEMO_OUT)/dataset --frames 12
