@@ -18,6 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from rgbd2scene.reconstruct.fill.holes import valid_depth
+
 #: Relative residual (|1/z_plane - 1/z| * z, about the relative depth error) under which a support pixel
 #: counts as on its segment's plane.
 PLANE_TOL = 0.01
@@ -45,7 +47,6 @@ class SegmentPlanes:
     coef: np.ndarray  # (n, 3)
     support: np.ndarray  # (n,)
     inliers: np.ndarray  # (n,)
-    rms: np.ndarray  # (n,) relative RMS residual of the inliers
     scale: np.ndarray  # (n,) robust scale of the relative residual: 1.4826 times its median absolute value
 
 
@@ -121,15 +122,12 @@ def fit_segment_planes(inv: np.ndarray, u: np.ndarray, v: np.ndarray, seg: np.nd
     """
     coef, rel = _irls(np.stack([np.ones_like(u), u, v], axis=1), inv, seg, n, tol, iterations)
     support = np.bincount(seg, minlength=n).astype(np.float64)
-    inl = np.abs(rel) < tol
-    cnt = np.maximum(np.bincount(seg, weights=inl, minlength=n), 1)
-    share = np.bincount(seg, weights=inl, minlength=n) / np.maximum(support, 1)
-    rms = np.sqrt(np.bincount(seg, weights=inl * rel**2, minlength=n) / cnt)
+    share = np.bincount(seg, weights=np.abs(rel) < tol, minlength=n) / np.maximum(support, 1)
     order = np.lexsort((np.abs(rel), seg))
     first = np.searchsorted(seg[order], np.arange(n))
     mid = np.minimum(first + (support.astype(int) // 2), max(seg.size - 1, 0))
     mad = np.where(support > 0, 1.4826 * np.abs(rel[order][mid]), np.inf)
-    return SegmentPlanes(coef, support, share, rms, mad)
+    return SegmentPlanes(coef, support, share, mad)
 
 
 def sensor_noise(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
@@ -191,7 +189,7 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     else:
         seg = segments[r0:r1, c0:c1].astype(np.int32)
     n = int(seg.max()) + 1
-    valid = np.isfinite(d) & (d > 0) & ~m
+    valid = valid_depth(d) & ~m
     near = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) <= reach
     cut = np.zeros(n, dtype=bool)
     cut[seg[m]] = True
