@@ -51,8 +51,7 @@ docstring held until session 10).
    mean of the NYU colorization and the biharmonic fill, each alone, by copies of the hole laid on valid
    depth, whose evidence proved no better than always taking the mean): tuning split 0.753 -> 0.680, rows
    above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9; report split 0.705 -> 0.673, 18 -> 17
-   of 101. :func:`choose_per_hole` still chooses by copies where :data:`GUIDED` holds more than one
-   candidate. A highlight (a hole at least half of whose pixels are bright, unsaturated and brighter than
+   of 101. A highlight (a hole at least half of whose pixels are bright, unsaturated and brighter than
    the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) is not guided by
    colour, whatever its width: its colour is the light's, not the surface's (3.).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
@@ -330,12 +329,12 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
     guided = (wide & ~lit)[1:].any()
     ahead = {"biharmonic": (rest | edge, across)} if guided and (edge.any() or rgb is None) else {}
     if guided and rgb is not None:
-        ahead.update({b: (rest, across) for b in CANDIDATES[GUIDED[0]]})
+        ahead.update({b: (rest, across) for b in CANDIDATES[GUIDED]})
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
             ThreadPoolExecutor(max_workers=1) as side:
         early = _submit_fills(solves, out, rgb, ahead)
         band_ways = side.submit(choose_band, work, rgb, edge, band, border_width, solves) if edge.any() else None
-        planar = (rest & (wide & ~lit)[labels]) if guided and rgb is not None and PLANES else None
+        planar = (rest & (wide & ~lit)[labels]) if guided and rgb is not None else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
         ways = np.zeros(work.shape, dtype=int) if band_ways is None else band_ways.result()
@@ -400,11 +399,11 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "nyu_colorization+guided_thin_plate": ("nyu_colorization", "guided_thin_plate"),
 }
 NAMES = list(CANDIDATES)
-#: The candidates a colour-guided hole may take on its copies' evidence (the rule's choice first): one, no choice
-#: (module docstring, 2.: choosing among it, the biharmonic fill and the NYU colorization did worse).
-GUIDED = ("nyu_colorization+guided_thin_plate",)
-#: ``auto`` fills colour segments of guided holes from their plane where the capture shows them planar (step 2).
-PLANES = True
+#: The fill of a colour-guided hole (module docstring, 2.), then planes where the capture shows them: no choice by
+#: copies (choosing among it, the biharmonic fill and the NYU colorization did worse, ``fill.md`` session 10).
+GUIDED = "nyu_colorization+guided_thin_plate"
+#: What narrow holes and highlights choose between on their copies, once per image (module docstring, 3.).
+SMOOTH = ("harmonic", "biharmonic")
 #: Within this many px of a guided hole's rim its plane is blended in linearly from the hole's other fill (step 2).
 PLANE_RAMP = 8.0
 #: The colour segmentation of step 2's planes runs at 1 / this resolution (at 1/2: about 0.04 s more CPU on the TUM
@@ -463,16 +462,16 @@ def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]],
     return {name: future.result() for name, future in _submit_fills(pool, depth, rgb, jobs).items()}
 
 
-def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int, coverage: float, copies: int,
+def _copy_errors(depth, labels, traits: HoleTraits, clearance: int, coverage: float, copies: int,
                  pool: Executor | None = None):
-    """Mean absolute error of each candidate on each hole's copies (inf where not tried) and the copies'
-    pixel count per hole; the colour-guided fills only on copies of ``guided`` holes."""
+    """Mean absolute error of each :data:`SMOOTH` fill on each hole's copies (inf where none fits) and the
+    copies' pixel count per hole."""
     n = traits.wide.size - 1
     valid = valid_depth(depth)
     free = valid & ~ndi.binary_dilation(~valid, iterations=clearance)
     source = hole_copies(labels, free, copies, coverage=coverage)
     test = source >= 0
-    err = np.full((n + 1, len(NAMES)), np.inf)
+    err = np.full((n + 1, len(SMOOTH)), np.inf)
     if not test.any():
         return err, np.zeros(n + 1)
     owner = labels.ravel()[source[test]]
@@ -481,18 +480,10 @@ def _copy_errors(depth, rgb, labels, traits: HoleTraits, guided, clearance: int,
     miss = np.abs(truth - float(np.nanmedian(depth)))  # the error of a copy pixel left unfilled
     across = np.zeros(labels.shape, dtype=bool)
     across[test] = traits.stepped[owner]
-    at = np.zeros(labels.shape, dtype=bool)
-    at[test] = guided[owner]
-    jobs = {"harmonic": (test, across), "biharmonic": (test, across)}
-    if at.any() and len(GUIDED) > 1:  # the colour-guided fills only where there is a choice to make
-        for b in sorted({b for k in GUIDED for b in CANDIDATES[k]} - {"harmonic", "biharmonic"}):
-            jobs[b] = (at, across & at)
-    fills = _base_fills(trial, rgb, jobs, pool)
+    fills = _base_fills(trial, None, {name: (test, across) for name in SMOOTH}, pool)
     npx = np.bincount(owner, minlength=n + 1).astype(np.float64)
-    for k, name in enumerate(NAMES):
-        if any(b not in fills for b in CANDIDATES[name]):
-            continue
-        est = np.mean([fills[b][test] for b in CANDIDATES[name]], axis=0)
+    for k, name in enumerate(SMOOTH):
+        est = fills[name][test]
         e = np.where(np.isfinite(est), np.abs(est - truth), miss)
         err[:, k] = np.bincount(owner, weights=e, minlength=n + 1) / np.maximum(npx, 1.0)
     return err, npx
@@ -508,10 +499,9 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     highlights take the smooth fill (harmonic or biharmonic) with the least error over all their copies
     pooled; where none of them has a whole copy, over copies that lie 60 % on pixels 2 px from any
     invalid one (a thin ring round a hole beyond range has no room for a whole copy); harmonic where
-    none fits at all. A colour-guided hole (wide or across a step, not a highlight, with RGB) takes the
-    first candidate of :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate);
-    where :data:`GUIDED` holds more than one, the one with the least mean absolute error on the hole's own
-    copies, the first where no copy fits or on a tie; without RGB, the biharmonic fill.
+    none fits at all. A colour-guided hole (wide or across a step, not a highlight, with RGB) takes
+    :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate); without RGB, the
+    biharmonic fill.
 
     Parameters
     ----------
@@ -532,20 +522,18 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     guided = ~smooth & (rgb is not None)
     guided[0] = False
     choice = np.full(n + 1, NAMES.index("harmonic"))
-    choice[guided] = NAMES.index(GUIDED[0])
+    choice[guided] = NAMES.index(GUIDED)
     choice[traits.wide & (rgb is None)] = NAMES.index("biharmonic")
-    err, npx = _copy_errors(depth, rgb, labels, traits, guided, COPY_CLEARANCE, 1.0, copies, pool)
-    smooth_err, smooth_npx = err, npx
-    if smooth.any() and not (smooth & (npx > 0)).any():
+    if not smooth.any():  # the copies only choose the smooth fill
+        return choice
+    err, npx = _copy_errors(depth, labels, traits, COPY_CLEARANCE, 1.0, copies, pool)
+    if not (smooth & (npx > 0)).any():
         narrow_only = np.where(smooth[labels], labels, 0)
-        smooth_err, smooth_npx = _copy_errors(depth, None, narrow_only, traits, np.zeros_like(guided), 2, 0.6,
-                                              copies, pool)
-    pool = smooth & (smooth_npx > 0)
-    if pool.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
-        choice[smooth] = int((smooth_err[pool, :2] * smooth_npx[pool, None]).sum(axis=0).argmin())
-    ways = [NAMES.index(name) for name in GUIDED]
-    own = guided & (npx > 0) & np.isfinite(err[:, ways[0]])
-    choice[own] = np.asarray(ways)[err[np.ix_(own, ways)].argmin(axis=1)]  # argmin keeps the first on a tie
+        err, npx = _copy_errors(depth, narrow_only, traits, 2, 0.6, copies, pool)
+    scored = smooth & (npx > 0)
+    if scored.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
+        best = int((err[scored] * npx[scored, None]).sum(axis=0).argmin())
+        choice[smooth] = NAMES.index(SMOOTH[best])
     return choice
 
 
