@@ -348,10 +348,9 @@ def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np
     diag_k = 1.0 + alpha
     upper = ii < nu
     uu = upper & (jj < nu)
-    # the unknowns' block is structurally symmetric and diagonally dominant: a minimum degree ordering of A + A^T,
-    # diagonal pivots (TUM frame: 1.4M entries in L + U against COLAMD's 2.1M)
-    lu = splu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)), permc_spec="MMD_AT_PLUS_A",
-              diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    # the unknowns' block is structurally symmetric and diagonally dominant (TUM frame: 1.4M entries in L + U
+    # against COLAMD's 2.1M)
+    lu = _diagonal_pivot_lu(sparse.csc_matrix((vv[uu], (ii[uu], jj[uu])), shape=(nu, nu)))
     uk = upper & (jj >= nu)
     A_uk = sparse.csr_matrix((vv[uk], (ii[uk], jj[uk] - nu)), shape=(nu, n - nu))
 
@@ -431,17 +430,22 @@ def fill_nyu_colorization(
     return _finish(depth, mask, x, nodes & mask)
 
 
+def _diagonal_pivot_lu(A: sparse.csc_matrix):
+    """SuperLU factorisation with a minimum degree ordering of A + A^T and the diagonal as pivots, for a matrix
+    symmetric in structure that needs no row exchanges (symmetric positive definite, or diagonally dominant)."""
+    return splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+
+
 def _spd_solve(A: sparse.csc_matrix, b: np.ndarray) -> np.ndarray:
-    """Solve A x = b for a symmetric positive definite A: SuperLU with a minimum degree ordering of A + A^T
-    and the diagonal as pivots (no row exchanges: an SPD matrix needs none).
+    """Solve A x = b for a symmetric positive definite A (:func:`_diagonal_pivot_lu`: an SPD matrix needs no
+    row exchanges).
 
     The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.40 s
     against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.49 s; the solution agrees to 1e-10
     (float32 fills within an ulp). Looked at and not used: a geometric nested dissection of the pixels
     (separators two pixels wide, the stencil's reach) with SuperLU's natural order, 0.25 s but 0.04-0.06 s to
     order in Python; other ``relax`` and ``panel_size`` settings (within the noise)."""
-    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
-    return lu.solve(b)
+    return _diagonal_pivot_lu(A).solve(b)
 
 
 def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.ndarray:
