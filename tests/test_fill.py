@@ -110,12 +110,18 @@ def test_each_filler_beats_a_constant_fill(filler):
     assert err < 0.01  # metres, on a surface with 5 cm of relief
 
 
-def test_biharmonic_is_exact_on_a_plane():
+def _plane_with_holes():
+    """A plane (affine inverse depth) with blob holes: (truth, depth, mask)."""
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    truth = (1.0 / (0.5 + 0.001 * u - 0.0007 * v)).astype(np.float32)  # a plane: affine inverse depth
+    truth = (1.0 / (0.5 + 0.001 * u - 0.0007 * v)).astype(np.float32)
     mask = blobs(3, n=4, r=8)
     depth = truth.copy()
     depth[mask] = np.nan
+    return truth, depth, mask
+
+
+def test_biharmonic_is_exact_on_a_plane():
+    truth, depth, mask = _plane_with_holes()
     out = fill_biharmonic(depth)
     np.testing.assert_allclose(out[mask], truth[mask], rtol=1e-5)
 
@@ -932,11 +938,7 @@ def test_nyu_colorization_follows_a_colour_edge_at_a_depth_step_better_than_harm
 
 
 def test_guided_thin_plate_is_exact_on_a_plane_whatever_the_colour():
-    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
-    truth = (1.0 / (0.5 + 0.001 * u - 0.0007 * v)).astype(np.float32)  # a plane: affine inverse depth
-    mask = blobs(3, n=4, r=8)
-    depth = truth.copy()
-    depth[mask] = np.nan
+    truth, depth, mask = _plane_with_holes()
     rng = np.random.default_rng(5)
     texture = rng.integers(0, 256, (H, W, 3)).astype(np.uint8)  # every coupling weighted differently
     for rgb in (None, np.full((H, W, 3), 128, np.uint8), texture):
