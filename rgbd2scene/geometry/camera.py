@@ -170,7 +170,8 @@ class Camera:
         return Camera(self.intrinsics.resized(width, height), self.D)
 
     def to_dict(self) -> dict:
-        return {**self.intrinsics.to_dict(), "D": list(self.D)}
+        """The intrinsics and ``D`` (5 zeros for an ideal lens, CONVENTIONS section 3)."""
+        return {**self.intrinsics.to_dict(), "D": self.distortion.tolist()}
 
     @classmethod
     def from_dict(cls, d: dict) -> Camera:
