@@ -93,6 +93,21 @@ def test_a_folding_lens_gives_nan_beyond_the_fold_and_a_warning():
     assert np.array_equal(np.isfinite(depth), has) and np.allclose(depth[has], 1.0)
 
 
+def test_checking_a_lens_that_does_not_fold_in_the_image_needs_no_per_pixel_rays():
+    """The check of a 1920x1080 camera must not cost every pixel's ray (tens of seconds) when nothing folds:
+    the border decides. A lens folding inside the image still gets the per-pixel share in its warning."""
+    from rgbd2scene.geometry.camera import _distorted_rays
+
+    hd = Camera(Intrinsics(1920, 1080, 1100.0, 1100.0, 959.5, 539.5), (-0.3, 0.12, 0.001, -0.0005, -0.02))
+    assert np.isfinite(hd.fold_radius)  # it folds, but beyond the image's corners (r 1.0)
+    before = _distorted_rays.cache_info().misses
+    assert hd.check("hd.yaml") is None
+    assert _distorted_rays.cache_info().misses == before
+    folding = Camera(Intrinsics(128, 96, 99.0, 99.0, 63.5, 47.5), (-0.5, 0.0, 0.0, 0.0, 0.0))  # not cached
+    assert "% of the pixels" in folding.check("scope.json")
+    assert _distorted_rays.cache_info().misses == before + 1
+
+
 def test_a_lens_folding_near_the_centre_is_refused():
     camera = Camera(Intrinsics(128, 96, 96.0, 96.0, 63.5, 47.5), (-3.0, 0, 0, 0, 0))
     with pytest.raises(UserError, match="folds"):

@@ -73,7 +73,7 @@ def test_hamlyn_folder_and_json_give_the_same_calibration(shared_samples, tmp_pa
     (lambda d: d.update(K_left=[[300.0, 0, 900.0], [0, 300.0, 120.0], [0, 0, 1]]), "principal point"),
     (lambda d: d.update(K_right=[1, 2, 3]), "K_right must have 9 numbers"),
     (lambda d: d.update(K_left=[[300.0, 0, 158.0], [0, 302.0, 121.0], [0.1, 0, 1]]), "K_left is not a camera matrix"),
-    (lambda d: d.update(R=[[1, 1e-4, 0], [0, 1, 0], [0, 0, 1]]), "R is not a rotation"),  # 1e-6 for every reader
+    (lambda d: d.update(R=[[1, 2e-3, 0], [0, 1, 0], [0, 0, 1]]), "R is not a rotation"),  # beyond ROTATION_SNAP
     (lambda d: d.update(D_right=[-3.0, 0, 0, 0, 0]), "D_right: the lens model folds"),
 ])
 def test_bad_calibrations_name_the_problem(change, message):
@@ -81,6 +81,24 @@ def test_bad_calibrations_name_the_problem(change, message):
     change(data)
     with pytest.raises(ValueError, match=message):
         StereoCalibration.from_dict(data)
+
+
+def test_a_rotation_written_with_few_decimals_is_replaced_by_the_nearest_rotation(capsys):
+    """A calibration file whose R was rounded to 4 decimals (off a rotation by about 1e-4) is read, with the
+    nearest rotation in its place (so the right eye's pose stays rigid) and one warning line; an exact R is
+    kept bit for bit."""
+    data = synthetic_calibration()
+    exact = StereoCalibration.from_dict(data)
+    angle = np.radians(2.0)
+    rotated = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    rounded = np.round(rotated, 4)
+    assert np.abs(rounded.T @ rounded - np.eye(3)).max() > 1e-6  # the case: off by more than the tolerance
+    calib = StereoCalibration.from_dict({**data, "R": rounded.tolist()})
+    R = np.asarray(calib.R)
+    assert np.abs(R.T @ R - np.eye(3)).max() < 1e-12 and abs(np.linalg.det(R) - 1) < 1e-12
+    assert np.abs(R - rounded).max() < 1e-4 and np.abs(R - rotated).max() < 1e-4
+    assert "the nearest rotation is used" in capsys.readouterr().err
+    assert np.array_equal(np.asarray(exact.R), np.asarray(data["R"], dtype=np.float64))
 
 
 def _write_calibration(path: Path, data: dict) -> Path:

@@ -31,6 +31,10 @@ SIZE_KEYS = ("image_size", "width", "height")
 INFO_KEYS = ("baseline_m", "rms", "E", "F", "R1", "R2", "P1", "P2", "Q")
 #: R must be a rotation within this (max entry of R^T R - I, and |det R - 1|).
 ROTATION_TOLERANCE = 1e-6
+#: A given R off a rotation by more than :data:`ROTATION_TOLERANCE` but at most this (a calibration written as
+#: text with 4-6 decimals: Hamlyn's ``calib.l2r.4x4`` files are off by up to 1.5e-6) is replaced by the nearest
+#: rotation, so that the right eye's pose stays rigid; beyond it, it is refused.
+ROTATION_SNAP = 1e-3
 #: Largest skew |K[0, 1]| taken as none, relative to fx (the camera model has no skew).
 SKEW_TOLERANCE = 1e-6
 #: Plausible baselines |T| (metres): 0.1 mm to 1 m.
@@ -72,7 +76,13 @@ class StereoCalibration:
             raise ValueError(f"image size {width}x{height} is not positive")
         cameras = [Camera(_intrinsics(K, k, width, height), _distortion(D, d))
                    for K, D, k, d in ((K_left, D_left, k_left, d_left), (K_right, D_right, k_right, d_right))]
-        calib = cls(*cameras, _matrix(R, (3, 3), r_key), _matrix(T, (3,), t_key))
+        R = _matrix(R, (3, 3), r_key)
+        off = _rotation_error(R) if np.isfinite(R).all() else 0.0  # non-finite: refused by check()
+        if ROTATION_TOLERANCE < off <= ROTATION_SNAP:
+            R = _nearest_rotation(R)
+            warn(f"{source + ': ' if source else ''}{r_key} is off a rotation by {off:.2g} (rounded text?); "
+                 "the nearest rotation is used")
+        calib = cls(*cameras, R, _matrix(T, (3,), t_key))
         for message in calib.check(keys):
             warn(f"{source}: {message}" if source else message)
         return calib
@@ -85,9 +95,9 @@ class StereoCalibration:
         for key, value in ((r_key, R), (t_key, T)):
             if not np.isfinite(value).all():
                 raise ValueError(f"{key} contains non-finite values")
-        off = np.abs(R.T @ R - np.eye(3)).max()
-        if off > ROTATION_TOLERANCE or abs(np.linalg.det(R) - 1) > ROTATION_TOLERANCE:
-            raise ValueError(f"{r_key} is not a rotation (R^T R - I up to {off:.2g}, det {np.linalg.det(R):.6g})")
+        if _rotation_error(R) > ROTATION_TOLERANCE:
+            raise ValueError(f"{r_key} is not a rotation (R^T R - I up to {np.abs(R.T @ R - np.eye(3)).max():.2g}, "
+                             f"det {np.linalg.det(R):.6g})")
         low, high = BASELINE_RANGE
         if not low <= self.baseline <= high:
             hint = " (T must be in metres; millimetres?)" if self.baseline > high else ""
@@ -199,6 +209,17 @@ class StereoCalibration:
         except (TypeError, ValueError):
             raise ValueError(f"image size must be two integers, got {size!r}") from None
         return cls.from_matrices(*(data[k] for k in JSON_KEYS), width, height, source=source)
+
+
+def _rotation_error(R: np.ndarray) -> float:
+    """How far R is from a rotation: the larger of max |R^T R - I| and |det R - 1| (NaN for non-finite R)."""
+    return float(max(np.abs(R.T @ R - np.eye(3)).max(), abs(np.linalg.det(R) - 1)))
+
+
+def _nearest_rotation(R: np.ndarray) -> np.ndarray:
+    """The rotation nearest to R in the Frobenius norm (its polar factor, U V^T of the SVD)."""
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
 
 
 def _matrix(value, shape: tuple[int, ...], key: str) -> np.ndarray:
