@@ -47,7 +47,6 @@ from rgbd2scene.capture.stereo import (  # noqa: E402
     RectifiedPair,
     StereoOptions,
     elas_available,
-    make_calibration,
     read_stereo_calibration,
     rectify,
     rectify_pair,
@@ -56,7 +55,6 @@ from rgbd2scene.capture.stereo import (  # noqa: E402
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first  # noqa: E402
 from rgbd2scene.conventions import pixel_grid  # noqa: E402
 from rgbd2scene.files import atomic  # noqa: E402
-from rgbd2scene.geometry.camera import Intrinsics  # noqa: E402
 from rgbd2scene.reconstruct.fusion import frame_agreement, reconstruct_fused  # noqa: E402
 from rgbd2scene.reconstruct.pipeline import MeshOptions, reconstruct  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
@@ -232,8 +230,7 @@ def bench_stereo_synthetic(repeats: int) -> list[dict]:
 def _scaled_hamlyn(width: int, height: int):
     """The Hamlyn frame and calibration resampled to width x height (intrinsics scaled pixel-centre aware)."""
     calib = read_stereo_calibration(HAMLYN, image_size=(360, 288))
-    K = [Intrinsics.from_K(k, 360, 288).resized(width, height).K for k in (calib.K_left, calib.K_right)]
-    scaled = make_calibration(K[0], calib.D_left, K[1], calib.D_right, calib.R, calib.T, width, height)
+    scaled = calib.resized(width, height)
     images = [cv2.resize(read_rgb(HAMLYN / name), (width, height), interpolation=cv2.INTER_LINEAR)
               for name in ("f7_dynamic_deint_L_0100.png", "f7_dynamic_deint_R_0100.png")]
     return scaled, images

@@ -30,7 +30,7 @@ def _scene(folder) -> SceneDescription:
     write_ply(folder / "mesh.ply", flat_grid(0.05, 0.04, 41))
     poses = np.tile(np.eye(4), (FRAMES, 1, 1))
     poses[:, 0, 3] = 0.001 * np.arange(FRAMES)
-    rig = StereoRig(Intrinsics(32, 16, 20.0, 20.0, 15.5, 7.5), 0.004, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(Intrinsics(32, 16, 20.0, 20.0, 15.5, 7.5), 0.004, clip_start=0.001, clip_end=2.0)
     return SceneDescription(rig, CameraPath(poses, fps=10.0, kind="test"), Light(),
                             [tissue_object("as_captured", texture=None)])
 

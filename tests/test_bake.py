@@ -70,7 +70,7 @@ def _albedo(detail: TissueDetail, folder) -> tuple[np.ndarray, object]:
     """Linear base colour the wet-tissue material gives a plane filling the view (192x96, left eye), and the
     material as built."""
     intr = Intrinsics.from_fov(192, 96, 70.0)
-    desc = SceneDescription(StereoRig(intr, 0.004, clip_start=0.001, clip_end=1.0),
+    desc = SceneDescription(StereoRig.parallel(intr, 0.004, clip_start=0.001, clip_end=1.0),
                             CameraPath(np.array([np.eye(4)]), fps=25.0, kind="test"), Light(power_w=0.05),
                             [tissue_object("wet_tissue", detail=detail)])
     build_scene(desc, write_scene_files(folder, _plane(0.06, 0.04, 0.05, n=16), desc))

@@ -62,7 +62,7 @@ def plane_mesh(point, normal, half_size: float = 0.3) -> SimpleNamespace:
 
 
 def describe(poses, intr: Intrinsics = INTR, material: str = "as_captured", light: Light | None = None):
-    rig = StereoRig(intr, BASELINE, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(intr, BASELINE, clip_start=0.001, clip_end=2.0)
     path = CameraPath(np.asarray(poses, float).reshape(-1, 4, 4), fps=25.0, kind="test")
     return SceneDescription(rig, path, light or Light(), [tissue_object(material)])
 
@@ -244,7 +244,7 @@ def test_intrinsics_exact_in_both_eyes(tmp_path, intr):
     build(describe([T_left], intr), plane_mesh(point, normal), tmp_path / "scene")
     out = render_eyes(tmp_path)
 
-    rig = StereoRig(intr, BASELINE)
+    rig = StereoRig.parallel(intr, BASELINE)
     rays = cv.pixel_rays(intr.height, intr.width, intr.K)
     for eye, T in (("left", T_left), ("right", rig.right_pose(T_left))):
         n_cam = T[:3, :3].T @ normal

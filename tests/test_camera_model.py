@@ -13,6 +13,7 @@ from rgbd2scene.conventions import backproject, pixel_rays, project
 from rgbd2scene.errors import UserError
 from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.geometry.raycast import Raycaster
+from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.reconstruct.mesh import grid_mesh
 from rgbd2scene.scene.rig import StereoRig
 
@@ -92,6 +93,21 @@ def test_a_folding_lens_gives_nan_beyond_the_fold_and_a_warning():
     assert np.array_equal(np.isfinite(depth), has) and np.allclose(depth[has], 1.0)
 
 
+def test_checking_a_lens_that_does_not_fold_in_the_image_needs_no_per_pixel_rays():
+    """The check of a 1920x1080 camera must not cost every pixel's ray (tens of seconds) when nothing folds:
+    the border decides. A lens folding inside the image still gets the per-pixel share in its warning."""
+    from rgbd2scene.geometry.camera import _distorted_rays
+
+    hd = Camera(Intrinsics(1920, 1080, 1100.0, 1100.0, 959.5, 539.5), (-0.3, 0.12, 0.001, -0.0005, -0.02))
+    assert np.isfinite(hd.fold_radius)  # it folds, but beyond the image's corners (r 1.0)
+    before = _distorted_rays.cache_info().misses
+    assert hd.check("hd.yaml") is None
+    assert _distorted_rays.cache_info().misses == before
+    folding = Camera(Intrinsics(128, 96, 99.0, 99.0, 63.5, 47.5), (-0.5, 0.0, 0.0, 0.0, 0.0))  # not cached
+    assert "% of the pixels" in folding.check("scope.json")
+    assert _distorted_rays.cache_info().misses == before + 1
+
+
 def test_a_lens_folding_near_the_centre_is_refused():
     camera = Camera(Intrinsics(128, 96, 96.0, 96.0, 63.5, 47.5), (-3.0, 0, 0, 0, 0))
     with pytest.raises(UserError, match="folds"):
@@ -115,23 +131,24 @@ def test_camera_round_trips_and_resizes():
 
 
 def test_the_rig_holds_two_cameras_and_r_t():
-    rig = StereoRig(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.005)
-    assert rig.rectified and rig.right == rig.left and rig.T == (-0.005, 0.0, 0.0)
-    assert np.allclose(rig.T_left_right[:3, 3], (0.005, 0, 0))
+    rig = StereoRig.parallel(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.005)
+    assert rig.rectified and rig.right == rig.left and rig.calibration.T == (-0.005, 0.0, 0.0)
+    assert np.allclose(rig.calibration.T_left_right[:3, 3], (0.005, 0, 0))
     angle = np.radians(2.0)
     R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
     T = np.array([-0.0049, 0.0002, 0.0001])
     right = Camera(Intrinsics(64, 32, 41.0, 40.5, 30.0, 16.0), PLUMB_BOB)
-    raw = StereoRig(Camera(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), PLUMB_BOB), 0.0, 0.001, 1.0, right, R, T)
+    left = Camera(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), PLUMB_BOB)
+    raw = StereoRig(StereoCalibration(left, right, R, T), 0.001, 1.0)
     assert not raw.rectified and raw.baseline == pytest.approx(np.linalg.norm(T))
     X_left = np.array([0.01, -0.005, 0.05])
-    X_right = (np.linalg.inv(raw.T_left_right) @ np.append(X_left, 1))[:3]
+    X_right = (np.linalg.inv(raw.calibration.T_left_right) @ np.append(X_left, 1))[:3]
     assert np.allclose(X_right, R @ X_left + T)  # X_right = R X_left + T, as cv2.stereoCalibrate
     assert StereoRig.from_dict(raw.to_dict()) == raw
     assert StereoRig.from_dict(rig.to_dict()) == rig
     assert raw.resized(32, 16).right.width == 32
-    with pytest.raises(UserError, match="rotation"):
-        StereoRig(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.0, R=R * 1.01, T=T).check()
+    with pytest.raises(ValueError, match="R is not a rotation"):
+        StereoCalibration(right, right, R * 1.01, T).check()
 
 
 def test_the_capture_pose_sees_its_own_grid_mesh_everywhere():
@@ -175,7 +192,7 @@ def test_raw_render_plan_covers_every_ray_and_blackens_beyond_the_fold():
     from rgbd2scene.scene.raw import raw_render_plan
 
     fold = Camera(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), (-0.5, 0.0, 0.0, 0.0, 0.0))
-    plan = raw_render_plan(StereoRig(fold, 0.004))
+    plan = raw_render_plan(StereoRig.parallel(fold, 0.004))
     map_x, map_y = plan.maps["left"]
     has = plan.has_ray["left"]
     intr = plan.intrinsics
@@ -198,8 +215,8 @@ def test_the_hamlyn_calibration_folder_is_a_scope_rig():
     np.testing.assert_array_equal(rig.left.K, K)
     np.testing.assert_array_equal(rig.right.K, np.loadtxt(HAMLYN / "calib.right.intrinsic.txt"))
     l2r = np.loadtxt(HAMLYN / "calib.l2r.4x4")
-    np.testing.assert_allclose(rig.R, l2r[:3, :3])
-    np.testing.assert_allclose(rig.T, l2r[:3, 3] / 1000.0)  # millimetres in the folder, metres in the rig
+    np.testing.assert_allclose(rig.calibration.R, l2r[:3, :3])
+    np.testing.assert_allclose(rig.calibration.T, l2r[:3, 3] / 1000.0)  # millimetres in the folder, metres in the rig
     assert not rig.rectified and (rig.left.width, rig.left.height) == (w, h)
 
 
@@ -207,11 +224,11 @@ def test_camera_info_of_a_rational_lens():
     from rgbd2scene.export.ros import camera_info_matrices
 
     lens = Camera(Intrinsics(64, 32, 40.0, 41.0, 31.5, 15.5), RATIONAL)
-    info = camera_info_matrices(StereoRig(lens, 0.005), "right")
+    info = camera_info_matrices(StereoRig.parallel(lens, 0.005), "right")
     assert info["distortion_model"] == "rational_polynomial"
     np.testing.assert_array_equal(info["d"], RATIONAL)
     np.testing.assert_array_equal(info["k"], lens.K.ravel())
-    pinhole = camera_info_matrices(StereoRig(lens.intrinsics, 0.005), "right")
+    pinhole = camera_info_matrices(StereoRig.parallel(lens.intrinsics, 0.005), "right")
     assert pinhole["distortion_model"] == "plumb_bob" and not pinhole["d"].any()
     assert pinhole["p"][3] == pytest.approx(-40.0 * 0.005)  # P[0,3] = -fx B
 
@@ -252,8 +269,8 @@ def test_model_ground_truth_of_a_rational_raw_pair_matches_opencv(tmp_path):
     angle = np.radians(1.0)
     R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
     T = np.array([-0.005, 0.0001, 0.0])
-    rig = StereoRig(Camera(Intrinsics.from_K(K1, w, h), RATIONAL), 0.0, 0.001, 2.0,
-                    right=Camera(Intrinsics.from_K(K2, w, h), D2), R=R, T=T)
+    rig = StereoRig(StereoCalibration(Camera(Intrinsics.from_K(K1, w, h), RATIONAL),
+                                      Camera(Intrinsics.from_K(K2, w, h), D2), R, T), 0.001, 2.0)
     poses = np.tile(np.eye(4), (2, 1, 1))
     poses[1, :3, 3] = (0.001, -0.0005, 0.0008)
     normal = np.array([0.1, 0.2, -1.0]) / np.linalg.norm([0.1, 0.2, -1.0])

@@ -117,7 +117,7 @@ CASES = {
     "calib_wrong_distortion_size": (STEREO, {"D_right": [0.1] * 6}, "D_right has 6 coefficients", "calib.json"),
     "calib_wrong_image_size": ({**STEREO, "left": "small.png", "right": "small.png"}, None,
                                "the images are 32x24 but the calibration", "calib.json"),
-    "calib_not_a_rotation": (STEREO, {"R": [[1, 0, 0], [0, 1, 0.2], [0, 0, 1]]}, "R is not a rotation matrix",
+    "calib_not_a_rotation": (STEREO, {"R": [[1, 0, 0], [0, 1, 0.2], [0, 0, 1]]}, "R is not a rotation",
                              "calib.json"),
     "calib_nan": (STEREO, {"T": [float("nan"), 0, 0]}, "T contains non-finite values", "calib.json"),
     "calib_nan_intrinsics": (STEREO, {"K_right": [[float("nan"), 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]]},

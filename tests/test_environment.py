@@ -94,7 +94,7 @@ def test_smoke_from_the_scene_configuration_and_the_render_switch(tmp_path):
         parse_scene_config({"environment": {"smoke": -3}}, tmp_path)
     with pytest.raises(ConfigError, match="environment"):
         parse_scene_config({"environment": {"fog": 1}}, tmp_path)
-    desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5)),
+    desc = SceneDescription(StereoRig.parallel(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5)),
                             CameraPath(np.eye(4)[None], fps=25.0, kind="test"), environment=config.environment)
     again = SceneDescription.from_dict(desc.to_dict())
     assert again.environment["smoke"] == 30.0

@@ -20,6 +20,7 @@ from rgbd2scene.conventions import CONVENTIONS_VERSION
 from rgbd2scene.dataset import Dataset
 from rgbd2scene.dataset.layout import EYES, frame_paths, write_dataset_json, write_gt, write_rgb
 from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.groundtruth.synthetic import PlaneScene, plane_texture
 from rgbd2scene.scene.rig import StereoRig, rectification
 
@@ -33,7 +34,7 @@ def _rig() -> StereoRig:
     right = Camera(Intrinsics(W, H, 123.0, 122.0, 77.5, 61.0), (-0.15, 0.03, -0.0003, 0.0002, 0.0))
     angle = np.deg2rad(1.5)  # the right eye turned about y (and a little about x)
     R = cv2.Rodrigues(np.array([0.004, angle, -0.003]))[0]
-    return StereoRig(left, 0.0, right=right, R=R.tolist(), T=[-0.005, 0.0002, 0.0001])
+    return StereoRig(StereoCalibration(left, right, R, [-0.005, 0.0002, 0.0001]))
 
 
 def _hit(origin: np.ndarray, rays: np.ndarray) -> np.ndarray:
@@ -47,7 +48,7 @@ def _write_raw_dataset(root):
     scene = PlaneScene(width=W, height=H, seed=3)
     for index in range(FRAMES):
         for eye in EYES:
-            T = np.eye(4) if eye == "left" else rig.T_left_right.copy()
+            T = np.eye(4) if eye == "left" else rig.calibration.T_left_right.copy()
             T[0, 3] += 0.0005 * index
             rays = rig.camera(eye).rays() @ T[:3, :3].T  # unit camera z: t is the planar depth
             t = _hit(T[:3, 3], rays)
@@ -60,7 +61,7 @@ def _write_raw_dataset(root):
         "width": W, "height": H, "frames": FRAMES, "fps": 30.0, "baseline": rig.baseline, "K": rig.left.K.tolist(),
         "eyes": list(EYES), "objects": {}, "classes": {},
         "camera": {"rectified": False, "left": rig.left.to_dict(), "right": rig.right.to_dict(),
-                   "R": [list(r) for r in rig.R], "T": list(rig.T)},
+                   "R": [list(r) for r in rig.calibration.R], "T": list(rig.calibration.T)},
         "render": {"engine": "synthetic", "gt": ["depth"]}, "scene": {"synthetic": "raw plane"},
         "software": {}, "seed": 0, "conventions_version": CONVENTIONS_VERSION,
     })
@@ -75,14 +76,14 @@ def raw(tmp_path_factory):
 def _rectified_disparity(index: int) -> np.ndarray:
     """The plane's left disparity in the rectified grid, in closed form: f_r B / z of each rectified pixel's ray."""
     rig = _rig()
-    rect = rectification(rig)
+    rect = rectification(rig.calibration)
     P1 = np.asarray(rect.P1)
     u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     rays_rect = np.stack([(u - P1[0, 2]) / P1[0, 0], (v - P1[1, 2]) / P1[1, 1], np.ones_like(u)], axis=-1)
     rays_raw = rays_rect @ np.asarray(rect.R1)  # rectified -> raw left frame: R1^T r
     origin = np.array([0.0005 * index, 0.0, 0.0])
     t = _hit(origin, rays_raw)  # the rectified ray is rays_rect with z 1: t is the rectified depth too
-    return (P1[0, 0] * np.linalg.norm(rig.T) / t).astype(np.float32)
+    return (P1[0, 0] * rig.baseline / t).astype(np.float32)
 
 
 def _row(folder, method, scored="all"):

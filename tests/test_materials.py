@@ -26,7 +26,7 @@ GT_MAPS = ("depth", "disparity", "normals", "flow_forward", "flow_backward", "se
 # ================================================================ settings (no Blender)
 
 def _description(detail: TissueDetail, intr: Intrinsics, poses) -> SceneDescription:
-    rig = StereoRig(intr, 0.005, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(intr, 0.005, clip_start=0.001, clip_end=2.0)
     return SceneDescription(rig, CameraPath(np.asarray(poses, float).reshape(-1, 4, 4), fps=25.0, kind="test"),
                             Light(power_w=0.05), [tissue_object("wet_tissue", detail=detail)])
 

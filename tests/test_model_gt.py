@@ -20,6 +20,7 @@ from rgbd2scene.files.meshio import write_ply
 from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.geometry.mesh import Mesh
 from rgbd2scene.geometry.raycast import raycaster
+from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.scene.config import parse_scene_config
 from rgbd2scene.scene.deformation import Deformation
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
@@ -66,7 +67,8 @@ def _build(folder: Path, rig: StereoRig) -> Path:
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Path:
-    return _build(tmp_path_factory.mktemp("model_gt_scene"), StereoRig(INTR, 0.005, clip_start=0.001, clip_end=2.0))
+    rig = StereoRig.parallel(INTR, 0.005, clip_start=0.001, clip_end=2.0)
+    return _build(tmp_path_factory.mktemp("model_gt_scene"), rig)
 
 
 @pytest.fixture(scope="module")
@@ -182,7 +184,7 @@ def test_a_raw_scope_over_the_moving_scene_passes_verify(tmp_path):
     R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
     left = Camera(INTR, (-0.3, 0.09, 0.001, -0.0005, -0.01))
     right = Camera(Intrinsics(64, 32, 41.0, 39.5, 30.8, 15.9), (-0.27, 0.07, -0.0004, 0.0008, 0.0))
-    rig = StereoRig(left, 0.0, 0.001, 2.0, right=right, R=R, T=(-0.005, 0.0001, 0.0002))
+    rig = StereoRig(StereoCalibration(left, right, R, (-0.005, 0.0001, 0.0002)), 0.001, 2.0)
     scene = _build(tmp_path / "scene", rig)
     out = tmp_path / "ds"
     render_dataset(scene, out, samples=1, denoise="none", progress=False)

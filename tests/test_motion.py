@@ -58,7 +58,7 @@ def _build(folder: Path, description: SceneDescription) -> Path:
 
 
 def _camera(poses) -> tuple[StereoRig, CameraPath]:
-    return (StereoRig(INTR, BASELINE, clip_start=0.001, clip_end=2.0),
+    return (StereoRig.parallel(INTR, BASELINE, clip_start=0.001, clip_end=2.0),
             CameraPath(np.asarray(poses, float), fps=10.0, kind="test"))
 
 

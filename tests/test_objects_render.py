@@ -50,7 +50,7 @@ def _plane(z: float = PLANE_Z, half: float = 0.3):
 
 def _build(folder: Path, config: dict, camera_poses: np.ndarray) -> tuple[Path, SceneDescription]:
     """Scene folder: the plane as tissue, the configuration's objects, the camera on ``camera_poses``."""
-    rig = StereoRig(INTR, BASELINE, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(INTR, BASELINE, clip_start=0.001, clip_end=2.0)
     plane = _plane()
     desc = SceneDescription(rig, CameraPath(camera_poses, fps=10.0, kind="test"), Light(),
                             [tissue_object("as_captured")])

@@ -20,6 +20,7 @@ import pytest
 from rgbd2scene.dataset import layout as ds
 from rgbd2scene.errors import UserError
 from rgbd2scene.geometry.camera import Camera, Intrinsics
+from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.scene.model import Light, SceneDescription, tissue_object
 from rgbd2scene.scene.paths import CameraPath
 from rgbd2scene.scene.rig import StereoRig, read_scope_calibration
@@ -44,8 +45,8 @@ POINT, NORMAL = np.array([0.0, 0.0, 0.05]), np.array([0.15, -0.1, -1.0]) / np.li
 
 
 def _rig() -> StereoRig:
-    return StereoRig(Camera(Intrinsics.from_K(K1, W, H), D1), 0.0, 0.001, 2.0,
-                     right=Camera(Intrinsics.from_K(K2, W, H), D2), R=R, T=T)
+    return StereoRig(StereoCalibration(Camera(Intrinsics.from_K(K1, W, H), D1), Camera(Intrinsics.from_K(K2, W, H), D2),
+                                       R, T), 0.001, 2.0)
 
 
 def _poses() -> np.ndarray:
@@ -170,7 +171,7 @@ def test_raw_images_and_calibration_yaml(raw):
     rig = read_scope_calibration(raw / "calibration.yaml")  # --scope-calib reads what render writes
     np.testing.assert_allclose(rig.right.K, K2)
     np.testing.assert_allclose(rig.right.distortion, D2)
-    np.testing.assert_allclose(rig.T, T)
+    np.testing.assert_allclose(rig.calibration.T, T)
 
 
 def test_rectify_gives_the_rectified_pair_of_opencv(scene, tmp_path):
@@ -216,7 +217,7 @@ def test_bad_scope_calibrations_are_one_line_errors(tmp_path):
         read_scope_calibration(write("fold.yaml", **{**good, "D1": np.array([-3.0, 0, 0, 0, 0])}))
     # Files OpenCV itself rejects (its constructor raised a SystemError traceback before) and a matrix key
     # holding no matrix: one line naming the file, also for a dataset's calibration.yaml (realism).
-    from rgbd2scene.realism.stereo import read_calibration_yaml
+    from rgbd2scene.capture.stereo import read_stereo_calibration
 
     (tmp_path / "empty.yaml").write_text("")
     (tmp_path / "broken.yaml").write_text("K1: [1, 2\n")
@@ -229,7 +230,7 @@ def test_bad_scope_calibrations_are_one_line_errors(tmp_path):
             read_scope_calibration(path)
         assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
         with pytest.raises(ValueError, match=message) as error:
-            read_calibration_yaml(path)
+            read_stereo_calibration(path)
         assert "\n" not in str(error.value)
     assert scalar.exists()
 
@@ -240,7 +241,7 @@ def test_a_lens_folding_inside_the_image_sees_nothing_beyond_the_fold(tmp_path):
     folder = tmp_path / "scene"
     folder.mkdir()
     fold = Camera(Intrinsics(W, H, 40.0, 40.0, 31.5, 15.5), (-0.5, 0.0, 0.0, 0.0, 0.0))
-    rig = StereoRig(fold, 0.004, 0.001, 2.0)
+    rig = StereoRig.parallel(fold, 0.004, 0.001, 2.0)
     assert 0.5 < fold.ray_share < 1.0
     corners = [(-0.2, -0.2, 0.05), (0.2, -0.2, 0.05), (0.2, 0.2, 0.05), (-0.2, 0.2, 0.05)]
     plane = SimpleNamespace(vertices=np.asarray(corners), triangles=np.array([[0, 2, 1], [0, 3, 2]], np.int32),

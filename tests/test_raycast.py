@@ -92,7 +92,7 @@ def test_scene_geometry_casts_from_its_eyes_as_from_the_whole_scene(tmp_path, br
     if breathing:
         tissue.parts[0].deformation = Deformation.preset("breathing", amplitude_m=0.004, frequency_hz=1.0,
                                                          extent_m=0.05, centre=(0.03, 0.0, 0.1))
-    description = SceneDescription(StereoRig(INTR, 0.004, clip_start=0.001, clip_end=2.0),
+    description = SceneDescription(StereoRig.parallel(INTR, 0.004, clip_start=0.001, clip_end=2.0),
                                    CameraPath(np.stack(_poses()), fps=10.0, kind="test"), Light(), [tissue])
     geometry = SceneGeometry(description, tmp_path)
     for frame in range(3):
@@ -109,7 +109,7 @@ def test_scene_geometry_casts_from_its_eyes_as_from_the_whole_scene(tmp_path, br
 def test_view_support_keeps_every_triangle_around_what_is_in_view(tmp_path):
     mesh = _wavy_grid()
     write_ply(tmp_path / "mesh.ply", mesh)
-    description = SceneDescription(StereoRig(INTR, 0.004, clip_start=0.001, clip_end=2.0),
+    description = SceneDescription(StereoRig.parallel(INTR, 0.004, clip_start=0.001, clip_end=2.0),
                                    CameraPath(np.stack(_poses()), fps=10.0, kind="test"), Light(),
                                    [tissue_object("as_captured", texture=None)])
     geometry = SceneGeometry(description, tmp_path)

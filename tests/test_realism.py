@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from rgbd2scene.capture.stereo import read_stereo_calibration
 from rgbd2scene.cli import main
 from rgbd2scene.dataset import Dataset
 from rgbd2scene.files.images import read_image, write_image
@@ -166,7 +167,7 @@ def test_calibration_yaml_reads_back(tmp_path):
     fs.write("image_width", 64)
     fs.write("image_height", 32)
     fs.release()
-    calib = stereo.read_calibration_yaml(path)
+    calib = read_stereo_calibration(path)
     np.testing.assert_array_equal(calib.K_left, K)
     assert calib.baseline == pytest.approx(0.005) and calib.size == (64, 32)
 

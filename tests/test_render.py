@@ -182,7 +182,7 @@ def _occluder(folder: Path) -> SceneObject:
 def scene_a(tmp_path_factory) -> Path:
     """Fronto-parallel plane at z=0.05 ending at x=0.005, an occluder with id 2; camera moves along +x."""
     poses = [_pose(t=(DX * f, 0.0, 0.0)) for f in range(3)]
-    rig = StereoRig(INTR_A, BASELINE, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(INTR_A, BASELINE, clip_start=0.001, clip_end=2.0)
     folder = tmp_path_factory.mktemp("scene_a")
     desc = SceneDescription(rig, CameraPath(np.array(poses), fps=25.0, kind="test"), Light(),
                             [tissue_object("as_captured"), _occluder(folder)])
@@ -204,7 +204,7 @@ def scene_b(tmp_path_factory) -> Path:
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
     corners = [TILT_POINT + 0.5 * (sx * e1 + sy * e2) for sx, sy in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
-    rig = StereoRig(INTR_B, BASELINE, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(INTR_B, BASELINE, clip_start=0.001, clip_end=2.0)
     desc = SceneDescription(rig, CameraPath(_poses_b(), fps=25.0, kind="test"), Light(),
                             [tissue_object("wet_tissue")])
     return _write_scene(tmp_path_factory.mktemp("scene_b"), desc, _quad(corners))
@@ -331,7 +331,8 @@ def test_plane_depth_normals_disparity_segmentation(dataset_a):
     K = INTR_A.K
     for f in range(3):
         T_left = _pose(t=(DX * f, 0.0, 0.0))
-        for eye, T in (("left", T_left), ("right", T_left @ StereoRig(INTR_A, BASELINE).T_left_right)):
+        T_left_right = StereoRig.parallel(INTR_A, BASELINE).calibration.T_left_right
+        for eye, T in (("left", T_left), ("right", T_left @ T_left_right)):
             rgb, gt = _load(out, eye, f)
             np.testing.assert_allclose(gt["T_world_cam"], T, atol=1e-6)
             np.testing.assert_array_equal(gt["K"], K)
@@ -391,7 +392,7 @@ def test_tilted_plane_resized_rotating_camera(dataset_b):
     info = json.loads((out / "dataset.json").read_text())
     np.testing.assert_allclose(info["K"], K)
     poses = _poses_b()
-    rig = StereoRig(INTR_B.resized(64, 32), BASELINE)
+    rig = StereoRig.parallel(INTR_B.resized(64, 32), BASELINE)
     for f in range(3):
         for eye, T in (("left", poses[f]), ("right", rig.right_pose(poses[f]))):
             _, gt = _load(out, eye, f)

@@ -190,7 +190,7 @@ def test_configuration_errors_name_the_key(tmp_path, data, key):
 
 
 def _scene(frames: int = 4) -> SceneDescription:
-    rig = StereoRig(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.005, clip_start=0.001, clip_end=2.0)
+    rig = StereoRig.parallel(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.005, clip_start=0.001, clip_end=2.0)
     return SceneDescription(rig, CameraPath(np.tile(np.eye(4), (frames, 1, 1)), fps=10.0), Light(),
                             [tissue_object("as_captured", texture=None)])
 

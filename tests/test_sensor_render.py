@@ -47,7 +47,7 @@ def scene(tmp_path_factory) -> Path:
                            vertex_colors=np.full((4, 3), 128, np.uint8))
     poses = np.array([np.eye(4) for _ in range(FRAMES)])
     poses[:, 0, 3] = 0.002 * np.arange(FRAMES)
-    desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5), 0.005),
+    desc = SceneDescription(StereoRig.parallel(Intrinsics(64, 32, 50.0, 50.0, 31.5, 15.5), 0.005),
                             CameraPath(poses, fps=25.0, kind="test"), LIGHT, [tissue_object("as_captured")])
     write_scene_files(folder, mesh, desc)
     run_task(Task(BuildScene(str(folder), desc.to_dict(), str(folder / "scene.blend"))))

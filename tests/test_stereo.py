@@ -16,11 +16,9 @@ from scipy.spatial.transform import Rotation
 
 from rgbd2scene.capture.readers import read_rgb
 from rgbd2scene.capture.stereo import (
-    DISTORTION_SIZES,
     STEREO_SMOOTH_ITERATIONS,
     RectifiedPair,
     StereoOptions,
-    calibration_from_json,
     elas_available,
     left_right_consistent,
     load_stereo_capture,
@@ -29,6 +27,7 @@ from rgbd2scene.capture.stereo import (
     stereo_depth,
 )
 from rgbd2scene.conventions import invert_pose, pixel_grid, transform_points
+from rgbd2scene.geometry.stereo import DISTORTION_SIZES, StereoCalibration
 from rgbd2scene.reconstruct.pipeline import reconstruct
 
 HAMLYN = "hamlyn_silicone_heart_phantom_stereo"
@@ -73,12 +72,101 @@ def test_hamlyn_folder_and_json_give_the_same_calibration(shared_samples, tmp_pa
     (lambda d: d.update(R=[[1, 0, 0], [0, 2, 0], [0, 0, 1]]), "R is not a rotation"),
     (lambda d: d.update(K_left=[[300.0, 0, 900.0], [0, 300.0, 120.0], [0, 0, 1]]), "principal point"),
     (lambda d: d.update(K_right=[1, 2, 3]), "K_right must have 9 numbers"),
+    (lambda d: d.update(K_left=[[300.0, 0, 158.0], [0, 302.0, 121.0], [0.1, 0, 1]]), "K_left is not a camera matrix"),
+    (lambda d: d.update(R=[[1, 2e-3, 0], [0, 1, 0], [0, 0, 1]]), "R is not a rotation"),  # beyond ROTATION_SNAP
+    (lambda d: d.update(D_right=[-3.0, 0, 0, 0, 0]), "D_right: the lens model folds"),
 ])
 def test_bad_calibrations_name_the_problem(change, message):
     data = synthetic_calibration()
     change(data)
     with pytest.raises(ValueError, match=message):
-        calibration_from_json(data)
+        StereoCalibration.from_dict(data)
+
+
+def test_a_rotation_written_with_few_decimals_is_replaced_by_the_nearest_rotation(capsys):
+    """A calibration file whose R was rounded to 4 decimals (off a rotation by about 1e-4) is read, with the
+    nearest rotation in its place (so the right eye's pose stays rigid) and one warning line; an exact R is
+    kept bit for bit."""
+    data = synthetic_calibration()
+    exact = StereoCalibration.from_dict(data)
+    angle = np.radians(2.0)
+    rotated = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    rounded = np.round(rotated, 4)
+    assert np.abs(rounded.T @ rounded - np.eye(3)).max() > 1e-6  # the case: off by more than the tolerance
+    calib = StereoCalibration.from_dict({**data, "R": rounded.tolist()})
+    R = np.asarray(calib.R)
+    assert np.abs(R.T @ R - np.eye(3)).max() < 1e-12 and abs(np.linalg.det(R) - 1) < 1e-12
+    assert np.abs(R - rounded).max() < 1e-4 and np.abs(R - rotated).max() < 1e-4
+    assert "the nearest rotation is used" in capsys.readouterr().err
+    assert np.array_equal(np.asarray(exact.R), np.asarray(data["R"], dtype=np.float64))
+
+
+def _write_calibration(path: Path, data: dict) -> Path:
+    """``data`` (a calibration JSON object) as a JSON file, or for ``.yaml`` as OpenCV FileStorage."""
+    if path.suffix == ".json":
+        path.write_text(json.dumps(data))
+        return path
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", data["image_size"][0])
+    fs.write("image_height", data["image_size"][1])
+    for key, name in zip(("K_left", "D_left", "K_right", "D_right", "R", "T"), ("K1", "D1", "K2", "D2", "R", "T"),
+                         strict=True):
+        fs.write(name, np.asarray(data[key], dtype=np.float64).reshape(3, -1) if key[0] in "KR"
+                 else np.asarray(data[key], dtype=np.float64).reshape(-1, 1))
+    fs.release()
+    return path
+
+
+@pytest.mark.parametrize("name, key", [("calib.json", "K_left"), ("calib.yaml", "K1")])
+def test_a_calibration_with_skew_is_refused_naming_the_key(tmp_path, name, key):
+    """The camera model has no skew: a K with skew is refused, not silently dropped (the scope's rig dropped it,
+    the capture kept it); a skew below 1e-6 fx is taken as none."""
+    from rgbd2scene.errors import UserError
+    from rgbd2scene.scene.rig import read_scope_calibration
+
+    data = synthetic_calibration()
+    data["K_left"] = [[300.0, 0.5, 158.0], [0, 302.0, 121.0], [0, 0, 1]]
+    path = _write_calibration(tmp_path / name, data)
+    with pytest.raises(ValueError, match=rf"^{key} has skew 0.5, which the camera model does not support$"):
+        read_stereo_calibration(path)
+    with pytest.raises(UserError, match=rf"^{path}: {key} has skew 0.5, which the camera model does not support$"):
+        read_scope_calibration(path)
+    data["K_left"][0][1] = 1e-4  # 3.3e-7 fx
+    calib = read_stereo_calibration(_write_calibration(tmp_path / name, data))
+    assert calib.K_left[0, 1] == 0.0 and calib.to_dict()["K_left"][0][1] == 0.0
+
+
+def test_the_scene_command_refuses_a_scope_with_skew_in_one_line(tmp_path, capsys):
+    from rgbd2scene.cli import main
+    from tests.conftest import BUNDLED_SAMPLE
+
+    data = synthetic_calibration()
+    data["K_left"] = [[300.0, 0.5, 158.0], [0, 302.0, 121.0], [0, 0, 1]]
+    path = _write_calibration(tmp_path / "scope.yaml", data)
+    sample = [f"--{key}={BUNDLED_SAMPLE / f'{key}.{ext}'}" for key, ext in (("rgb", "png"), ("depth", "png"),
+                                                                           ("camera", "json"))]
+    assert main(["scene", *sample, "--scope-calib", str(path), "-o", str(tmp_path / "out")]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert lines == [f"error: {path}: K1 has skew 0.5, which the camera model does not support"]
+
+
+@pytest.mark.parametrize("size", [4, 5, 8])
+def test_an_ideal_lens_is_recorded_as_five_zeros(tmp_path, size):
+    """CONVENTIONS section 3: D is "zeros for an ideal pinhole", in every record (the capture's calibration, the
+    scope's rig in scene.json, dataset.json's cameras), never [] and in one length."""
+    from rgbd2scene.scene.rig import StereoRig, read_scope_calibration
+    from rgbd2scene.stages.render import camera_record
+
+    data = synthetic_calibration() | {"D_left": [0.0] * size, "D_right": [0.0] * size}
+    path = _write_calibration(tmp_path / "ideal.json", data)
+    zeros = [0.0] * 5
+    values = read_stereo_calibration(path).to_dict()
+    assert values["D_left"] == values["D_right"] == zeros
+    rig = read_scope_calibration(path).to_dict()
+    assert rig["D"] == rig["right"]["D"] == zeros
+    for scope in (StereoRig.endoscope(), StereoRig.from_dict(rig)):
+        record = camera_record(scope)
+        assert record["left"]["D"] == record["right"]["D"] == zeros
 
 
 def test_hamlyn_folder_without_a_file_is_named(shared_samples, tmp_path):
@@ -95,10 +183,11 @@ def test_hamlyn_folder_without_a_file_is_named(shared_samples, tmp_path):
 def test_rectification_keeps_the_field_of_view_and_aligns_rows(n_coeffs):
     """Every border pixel of both images lands inside the rectified images (alpha=1; alpha=0 would crop),
     and a 3-D point seen by both cameras lands on one row, at disparity f B / z (rectified left frame)."""
-    calib = calibration_from_json(synthetic_calibration(n_coeffs))
+    calib = StereoCalibration.from_dict(synthetic_calibration(n_coeffs))
     rect = rectify(calib)
-    natural = cv2.stereoRectify(calib.K_left, calib.D_left, calib.K_right, calib.D_right, calib.size, calib.R,
-                                calib.T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)[2][0, 0]
+    R_lr, T_lr = np.asarray(calib.R), np.asarray(calib.T)
+    natural = cv2.stereoRectify(calib.K_left, calib.D_left, calib.K_right, calib.D_right, calib.size, R_lr, T_lr,
+                                flags=cv2.CALIB_ZERO_DISPARITY, alpha=-1)[2][0, 0]
     assert rect.K[0, 0] >= 0.99 * natural  # the canvas grew instead of down-sampling
     w, h = calib.size
     u, v = pixel_grid(h, w)
@@ -112,9 +201,9 @@ def test_rectification_keeps_the_field_of_view_and_aligns_rows(n_coeffs):
 
     rng = np.random.default_rng(n_coeffs)
     points = np.column_stack([rng.uniform(-0.02, 0.02, 50), rng.uniform(-0.015, 0.015, 50), rng.uniform(0.04, 0.1, 50)])
-    rvec_right = cv2.Rodrigues(calib.R)[0]
+    rvec_right = cv2.Rodrigues(R_lr)[0]
     left_px = cv2.projectPoints(points, np.zeros(3), np.zeros(3), calib.K_left, calib.D_left)[0]
-    right_px = cv2.projectPoints(points, rvec_right, calib.T, calib.K_right, calib.D_right)[0]
+    right_px = cv2.projectPoints(points, rvec_right, T_lr, calib.K_right, calib.D_right)[0]
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
     lr = cv2.undistortPointsIter(left_px, calib.K_left, calib.D_left, rect.R1, rect.P1, criteria).reshape(-1, 2)
     rr = cv2.undistortPointsIter(right_px, calib.K_right, calib.D_right, rect.R2, rect.P2, criteria).reshape(-1, 2)
@@ -127,19 +216,17 @@ def test_a_scope_rig_and_its_calibration_have_one_rectified_pair():
     """The rig's rectified pair (CONVENTIONS 1.2: ``render --rectify``, calibration.yaml, evaluation) is the
     capture's at alpha 0 and the rig's size, exactly; an already rectified rig is its own (R = I, P = [K | t]),
     which is what ``cv2.stereoRectify`` gives it too, up to rounding."""
-    from rgbd2scene.capture.stereo import make_calibration
     from rgbd2scene.scene.rig import StereoRig, read_scope_calibration, rectification
 
     rig = read_scope_calibration(Path(__file__).parents[1] / "data_samples" / "scope" / "calibration.yaml")
-    calib = make_calibration(rig.left.K, rig.left.distortion, rig.right.K, rig.right.distortion, rig.R, rig.T,
-                             rig.left.width, rig.left.height)
-    ours, theirs = rectification(rig), rectify(calib, alpha=0.0, keep_resolution=False)
+    calib = rig.calibration
+    ours, theirs = rectification(calib), rectify(calib, alpha=0.0, keep_resolution=False)
     assert not np.allclose(ours.R1, np.eye(3)) and (ours.width, ours.height) == (theirs.width, theirs.height)
     for name in ("R1", "R2", "P1", "P2", "Q"):
         assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
 
     rectified = StereoRig.endoscope(64, 32, 60.0, 0.004)
-    own = rectification(rectified)
+    own = rectification(rectified.calibration)
     opencv = cv2.stereoRectify(rectified.left.K, np.zeros(5), rectified.left.K, np.zeros(5), (64, 32),
                                np.eye(3), np.array([-0.004, 0.0, 0.0]), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
     assert np.array_equal(own.R1, np.eye(3)) and np.array_equal(own.P1[:, :3], rectified.left.K)
@@ -149,21 +236,19 @@ def test_a_scope_rig_and_its_calibration_have_one_rectified_pair():
 
 
 def test_a_calibration_yaml_reads_alike_for_the_dataset_and_the_scope(tmp_path):
-    """``calibration.yaml`` has one FileStorage reader: the realism report's calibration of a raw dataset and
-    ``--scope-calib``'s rig hold the same values, exactly; each still words a missing key its own way."""
+    """``calibration.yaml`` has one reader: the realism report's calibration of a raw dataset is the
+    calibration of ``--scope-calib``'s rig, and a missing key is named alike."""
     from rgbd2scene.errors import UserError
-    from rgbd2scene.realism.stereo import read_calibration_yaml
-    from rgbd2scene.scene.rig import StereoRig, read_scope_calibration
+    from rgbd2scene.scene.rig import read_scope_calibration
 
     path = Path(__file__).parents[1] / "data_samples" / "scope" / "calibration.yaml"
-    calib, rig = read_calibration_yaml(path), read_scope_calibration(path)
-    assert StereoRig.from_calibration(calib.to_dict()) == rig and calib.D_left.size == 5
-    assert np.array_equal(calib.R, np.asarray(rig.R)) and np.array_equal(calib.T, np.asarray(rig.T))
+    calib, rig = read_stereo_calibration(path), read_scope_calibration(path)
+    assert rig.calibration == calib and calib.D_left.size == 5
     text = path.read_text()
     start = text.index("D2:")
     (tmp_path / "no_d2.yaml").write_text(text[:start] + text[text.index("R:", start):])
-    with pytest.raises(ValueError, match=r"no_d2.yaml: no D2$"):
-        read_calibration_yaml(tmp_path / "no_d2.yaml")
+    with pytest.raises(ValueError, match=r"^missing key\(s\) D2 \(a calibration holds"):
+        read_stereo_calibration(tmp_path / "no_d2.yaml")
     with pytest.raises(UserError, match=r"no_d2.yaml: missing key\(s\) D2 \(a calibration holds"):
         read_scope_calibration(tmp_path / "no_d2.yaml")
 

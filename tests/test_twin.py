@@ -24,7 +24,7 @@ def test_capture_camera_of_a_stereo_record_is_the_calibrated_pair():
     assert (rig.left.width, rig.left.height) == (360, 288) and not rig.rectified
     np.testing.assert_array_equal(rig.right.K, K2)
     np.testing.assert_array_equal(rig.left.D, calib["D_left"])
-    np.testing.assert_allclose(rig.R, R)
+    np.testing.assert_allclose(rig.calibration.R, R)
     assert rig.baseline == pytest.approx(np.linalg.norm(calib["T"]))
     np.testing.assert_array_equal(pose, np.eye(4))
 

@@ -119,7 +119,7 @@ def quad_scene(tmp_path_factory) -> Path:
     """A fronto-parallel textured quad filling the view of a 3-frame static path."""
     folder = tmp_path_factory.mktemp("quad")
     poses = np.repeat(np.eye(4)[None], 3, axis=0)
-    desc = SceneDescription(StereoRig(Intrinsics(64, 32, 50.0, 50.0, 32.0, 16.0), 0.005, clip_start=0.001,
+    desc = SceneDescription(StereoRig.parallel(Intrinsics(64, 32, 50.0, 50.0, 32.0, 16.0), 0.005, clip_start=0.001,
                                       clip_end=2.0), CameraPath(poses, fps=25.0, kind="test"), Light(),
                             [tissue_object("as_captured")])
     z = 0.05

@@ -34,7 +34,7 @@ def _scene(folder: Path, z: float, grey: int) -> Path:
     """A grey plane at depth ``z``, the camera backing off over ``FRAMES`` frames."""
     poses = np.tile(np.eye(4), (FRAMES, 1, 1))
     poses[:, 2, 3] = -0.001 * np.arange(FRAMES)
-    desc = SceneDescription(StereoRig(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.005, clip_start=0.001,
+    desc = SceneDescription(StereoRig.parallel(Intrinsics(64, 32, 40.0, 40.0, 31.5, 15.5), 0.005, clip_start=0.001,
                                       clip_end=2.0), CameraPath(poses, fps=10.0, kind="test"), Light(),
                             [tissue_object("as_captured", texture=None)])
     write_scene_files(folder, flat_grid(z, 0.06, 31, grey), desc)

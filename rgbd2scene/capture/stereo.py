@@ -1,14 +1,14 @@
 """A stereo endoscope frame as an RGB-D capture: calibration, rectification, stereo matching, confident depth.
 
-Calibration (:class:`StereoCalibration`, OpenCV conventions): intrinsics ``K_left``/``K_right``, distortion
-``D_left``/``D_right`` in any of OpenCV's models (4, 5, 8, 12 or 14 coefficients) and the left-to-right
-extrinsics ``R``, ``T`` (metres): a point X in the left camera frame is ``R X + T`` in the right one.
-:func:`read_stereo_calibration` takes a JSON file (``K_left, D_left, K_right, D_right, R, T`` and the image
-size as ``image_size: [w, h]`` or ``width``/``height``) or a folder laid out like the Hamlyn data
-(``calib.{left,right}.intrinsic.txt`` 3x3, ``calib.{left,right}.distortion.txt``, ``calib.l2r.4x4`` in mm;
-the image size then comes from the images). :func:`read_opencv_calibration` is the one reader of an OpenCV
-FileStorage calibration (``K1 D1 K2 D2 R T``, ``image_width``, ``image_height``: a dataset's
-``calibration.yaml``, ``scene --scope-calib``).
+Calibration (:class:`~rgbd2scene.geometry.stereo.StereoCalibration`, OpenCV conventions: each eye's K and D in
+any of OpenCV's models, and the left-to-right ``R``, ``T`` in metres, ``X_right = R X_left + T``):
+:func:`read_stereo_calibration` is the one reader of a calibration file. It takes an OpenCV FileStorage file
+(``K1 D1 K2 D2 R T``, ``image_width``, ``image_height``: a dataset's ``calibration.yaml``, what
+``cv2.stereoCalibrate`` users save), a JSON file (``K_left, D_left, K_right, D_right, R, T`` and the image size
+as ``image_size: [w, h]`` or ``width``/``height``) or a folder laid out like the Hamlyn data
+(``calib.{left,right}.intrinsic.txt`` 3x3, ``calib.{left,right}.distortion.txt``, ``calib.l2r.4x4`` in mm; the
+image size then comes from the images); all of them end in the one validation,
+:meth:`~rgbd2scene.geometry.stereo.StereoCalibration.from_matrices`.
 
 Rectification (:func:`rectify`, through :func:`~rgbd2scene.geometry.rectification.stereo_rectification`, the
 one definition of a rig's rectified pair) uses ``alpha=1``: every pixel of both source images stays in the
@@ -49,13 +49,17 @@ from rgbd2scene.conventions import depth_from_disparity
 from rgbd2scene.errors import UserError
 from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.geometry.rectification import Rectification, stereo_rectification
+from rgbd2scene.geometry.stereo import StereoCalibration
 
-#: Numbers of distortion coefficients OpenCV's camera models take.
-DISTORTION_SIZES = (4, 5, 8, 12, 14)
 #: Files of a Hamlyn-style calibration folder.
 HAMLYN_FILES = {"K_left": "calib.left.intrinsic.txt", "D_left": "calib.left.distortion.txt",
                 "K_right": "calib.right.intrinsic.txt", "D_right": "calib.right.distortion.txt",
                 "l2r_mm": "calib.l2r.4x4"}
+#: Keys of an OpenCV FileStorage stereo calibration (CONVENTIONS section 2's ``calibration.yaml``, what
+#: ``scene --scope-calib`` reads): the matrices, then the image size.
+OPENCV_CALIB_KEYS = ("K1", "D1", "K2", "D2", "R", "T")
+OPENCV_SIZE_KEYS = ("image_width", "image_height")
+OPENCV_SUFFIXES = (".yaml", ".yml", ".xml")
 MATCHERS = ("auto", "sgbm", "elas")
 #: Ray-smoothing iterations for a stereo frame's mesh (10 for RGB-D). Stereo depth is rough at the pixel
 #: scale (sub-pixel disparity noise of 0.07-0.14 px is about one pixel footprint in depth): on a synthetic
@@ -67,122 +71,6 @@ STEREO_SMOOTH_ITERATIONS = 30
 
 
 # ---------------------------------------------------------------------------------------------- calibration
-
-
-@dataclass(frozen=True)
-class StereoCalibration:
-    """OpenCV stereo calibration of a width x height pair; ``T`` in metres (X_right = R X_left + T)."""
-
-    K_left: np.ndarray
-    D_left: np.ndarray
-    K_right: np.ndarray
-    D_right: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    width: int
-    height: int
-
-    @property
-    def baseline(self) -> float:
-        return float(np.linalg.norm(self.T))
-
-    @property
-    def size(self) -> tuple[int, int]:
-        return self.width, self.height
-
-    def to_dict(self) -> dict:
-        return {"K_left": self.K_left.tolist(), "D_left": self.D_left.tolist(), "K_right": self.K_right.tolist(),
-                "D_right": self.D_right.tolist(), "R": self.R.tolist(), "T": self.T.tolist(),
-                "image_size": [self.width, self.height], "baseline_m": self.baseline}
-
-
-def _matrix(value, shape: tuple[int, ...], name: str) -> np.ndarray:
-    try:
-        m = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} is not a matrix of numbers") from None
-    if m.size != math.prod(shape):
-        raise ValueError(f"{name} must have {math.prod(shape)} numbers ({'x'.join(map(str, shape))}), got {m.size}")
-    m = m.reshape(shape)
-    if not np.isfinite(m).all():
-        raise ValueError(f"{name} contains non-finite values")
-    return m
-
-
-def _distortion(value, name: str) -> np.ndarray:
-    try:
-        d = np.asarray(value, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} is not a list of numbers") from None
-    if d.size not in DISTORTION_SIZES:
-        sizes = ", ".join(map(str, DISTORTION_SIZES))
-        raise ValueError(f"{name} has {d.size} coefficients; OpenCV's models take {sizes}")
-    if not np.isfinite(d).all():
-        raise ValueError(f"{name} contains non-finite values")
-    return d
-
-
-def make_calibration(K_left, D_left, K_right, D_right, R, T, width: int, height: int) -> StereoCalibration:
-    """A checked :class:`StereoCalibration`; ``ValueError`` names the bad part."""
-    K1, K2 = _matrix(K_left, (3, 3), "K_left"), _matrix(K_right, (3, 3), "K_right")
-    R = _matrix(R, (3, 3), "R")
-    T = _matrix(T, (3,), "T")
-    width, height = int(width), int(height)
-    if width <= 0 or height <= 0:
-        raise ValueError(f"image size {width}x{height} is not positive")
-    for name, K in (("K_left", K1), ("K_right", K2)):
-        try:
-            Intrinsics.from_K(K, width, height).check(name)
-        except UserError as exc:
-            raise ValueError(str(exc)) from None
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-3 or np.linalg.det(R) <= 0:
-        raise ValueError("R is not a rotation matrix")
-    baseline = float(np.linalg.norm(T))
-    if not 1e-4 <= baseline <= 1.0:
-        hint = " (T must be in metres; millimetres?)" if baseline > 1.0 else ""
-        raise ValueError(f"baseline |T| = {baseline:.4g} m is implausible{hint}")
-    if abs(T[0]) < abs(T[1]):
-        raise ValueError("the cameras are stacked vertically (|T_y| > |T_x|); only side-by-side pairs are supported")
-    if T[0] > 0:
-        raise ValueError("T_x > 0 puts the right camera left of the left one: are left and right swapped?")
-    return StereoCalibration(K1, _distortion(D_left, "D_left"), K2, _distortion(D_right, "D_right"), R, T,
-                             width, height)
-
-
-#: Keys of a calibration JSON: the calibration itself, its image size, and what OpenCV's calibration and
-#: :meth:`StereoCalibration.to_dict` also report (kept in the file, not used).
-CALIBRATION_KEYS = ("K_left", "D_left", "K_right", "D_right", "R", "T")
-CALIBRATION_SIZE_KEYS = ("image_size", "width", "height")
-CALIBRATION_INFO_KEYS = ("baseline_m", "rms", "E", "F", "R1", "R2", "P1", "P2", "Q")
-
-
-def calibration_from_json(data: dict) -> StereoCalibration:
-    """Calibration from a JSON object (see the module docstring); other keys than ``CALIBRATION_KEYS``,
-    the size and ``CALIBRATION_INFO_KEYS`` are an error (a misspelt key would otherwise go unnoticed)."""
-    if not isinstance(data, dict):
-        raise ValueError("the calibration JSON must be an object")
-    missing = [k for k in CALIBRATION_KEYS if k not in data]
-    if missing:
-        raise ValueError(f"missing key(s) {', '.join(missing)} (need K_left, D_left, K_right, D_right, R, T "
-                         "and image_size)")
-    unknown = sorted(set(data) - {*CALIBRATION_KEYS, *CALIBRATION_SIZE_KEYS, *CALIBRATION_INFO_KEYS})
-    if unknown:
-        raise ValueError(f"unknown key(s) {', '.join(unknown)} (known: {', '.join(CALIBRATION_KEYS)}, image_size "
-                         f"or width and height, and {', '.join(CALIBRATION_INFO_KEYS)})")
-    if "image_size" in data:
-        size = data["image_size"]
-        if not isinstance(size, list | tuple) or len(size) != 2:
-            raise ValueError(f"image_size must be [width, height], got {size!r}")
-    elif "width" in data and "height" in data:
-        size = (data["width"], data["height"])
-    else:
-        raise ValueError("missing the image size (image_size: [width, height], or width and height)")
-    try:
-        width, height = int(size[0]), int(size[1])
-    except (TypeError, ValueError):
-        raise ValueError(f"image size must be two integers, got {size!r}") from None
-    return make_calibration(data["K_left"], data["D_left"], data["K_right"], data["D_right"], data["R"],
-                            data["T"], width, height)
 
 
 def calibration_from_hamlyn_folder(folder: str | Path, image_size: tuple[int, int]) -> StereoCalibration:
@@ -197,32 +85,51 @@ def calibration_from_hamlyn_folder(folder: str | Path, image_size: tuple[int, in
             arrays[key] = np.loadtxt(path, ndmin=1)
         except ValueError as exc:
             raise ValueError(f"{name}: not a table of numbers ({exc})") from None
-    l2r = _matrix(arrays["l2r_mm"], (4, 4), HAMLYN_FILES["l2r_mm"])
-    return make_calibration(arrays["K_left"], arrays["D_left"], arrays["K_right"], arrays["D_right"],
-                            l2r[:3, :3], l2r[:3, 3] / 1000.0, *image_size)
+    l2r_name = HAMLYN_FILES["l2r_mm"]
+    try:
+        l2r = np.asarray(arrays["l2r_mm"], dtype=np.float64).reshape(4, 4)
+    except ValueError:
+        raise ValueError(f"{l2r_name} must have 16 numbers (4x4), got {arrays['l2r_mm'].size}") from None
+    keys = (*(HAMLYN_FILES[k] for k in ("K_left", "D_left", "K_right", "D_right")), l2r_name, l2r_name)
+    return StereoCalibration.from_matrices(arrays["K_left"], arrays["D_left"], arrays["K_right"], arrays["D_right"],
+                                           l2r[:3, :3], l2r[:3, 3] / 1000.0, *image_size, keys=keys,
+                                           source=str(folder))
 
 
 def read_stereo_calibration(path: str | Path, image_size: tuple[int, int] | None = None) -> StereoCalibration:
-    """Read a calibration JSON file or Hamlyn-style folder; ``image_size`` (w, h) is needed for a folder.
+    """Read a stereo calibration: an OpenCV FileStorage file (``.yaml``/``.yml``/``.xml``: ``K1 D1 K2 D2 R T``
+    and ``image_width``, ``image_height``), a calibration JSON
+    (:meth:`~rgbd2scene.geometry.stereo.StereoCalibration.from_dict`) or a Hamlyn-style folder. A folder, and a
+    FileStorage file without the image size, take it from ``image_size`` (w, h).
 
-    Raises ``ValueError`` on a malformed calibration and ``OSError`` when it cannot be read.
+    Raises ``ValueError`` naming the key of a malformed calibration and ``OSError`` when it cannot be read.
     """
     path = Path(path)
     if path.is_dir():
         if image_size is None:
             raise ValueError("a calibration folder does not give the image size")
         return calibration_from_hamlyn_folder(path, image_size)
+    if path.suffix.lower() in OPENCV_SUFFIXES:
+        nodes = read_opencv_calibration(path)
+        if nodes is None:
+            raise ValueError("not an OpenCV FileStorage file")
+        missing = [key for key in OPENCV_CALIB_KEYS if nodes.get(key) is None]
+        if missing:
+            raise ValueError(f"missing key(s) {', '.join(missing)} (a calibration holds {' '.join(OPENCV_CALIB_KEYS)} "
+                             f"and {', '.join(OPENCV_SIZE_KEYS)})")
+        if all(key in nodes for key in OPENCV_SIZE_KEYS):
+            image_size = tuple(int(nodes[key]) for key in OPENCV_SIZE_KEYS)
+        if image_size is None:
+            raise ValueError(f"no image size ({' and '.join(OPENCV_SIZE_KEYS)})")
+        return StereoCalibration.from_matrices(*(nodes[key] for key in OPENCV_CALIB_KEYS), *image_size,
+                                               keys=OPENCV_CALIB_KEYS, source=str(path))
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"not valid JSON ({exc})") from None
-    return calibration_from_json(data)
+    return StereoCalibration.from_dict(data, source=str(path))
 
 
-#: Keys of an OpenCV FileStorage stereo calibration (CONVENTIONS section 2's ``calibration.yaml``, what
-#: ``scene --scope-calib`` reads): the matrices, then the image size.
-OPENCV_CALIB_KEYS = ("K1", "D1", "K2", "D2", "R", "T")
-OPENCV_SIZE_KEYS = ("image_width", "image_height")
 
 
 def read_opencv_calibration(path: str | Path) -> dict | None:

@@ -12,30 +12,32 @@ from pathlib import Path
 import numpy as np
 
 from rgbd2scene.files.atomic import atomic_path
-from rgbd2scene.scene.rig import StereoRig, rectification
+from rgbd2scene.geometry.stereo import StereoCalibration
+from rgbd2scene.scene.rig import rectification
 
 CALIBRATION_YAML = "calibration.yaml"
 
 
-def write_calibration(root: str | Path, rig: StereoRig) -> Path:
-    """Write ``root/calibration.yaml`` of ``rig`` (the rig as rendered, at the dataset's image size) atomically."""
+def write_calibration(root: str | Path, calibration: StereoCalibration) -> Path:
+    """Write ``root/calibration.yaml`` of ``calibration`` (the rig's as rendered, at the dataset's image size)
+    atomically."""
     import cv2
 
     path = Path(root) / CALIBRATION_YAML
     with atomic_path(path) as tmp:
         fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
         try:
-            fs.write("image_width", int(rig.left.width))
-            fs.write("image_height", int(rig.left.height))
-            fs.write("K1", rig.left.K)
-            fs.write("D1", rig.left.distortion.reshape(1, -1))
-            fs.write("K2", rig.right.K)
-            fs.write("D2", rig.right.distortion.reshape(1, -1))
-            fs.write("R", np.asarray(rig.R, dtype=np.float64))
-            fs.write("T", np.asarray(rig.T, dtype=np.float64).reshape(3, 1))
-            fs.write("rectified", int(rig.rectified))
-            if rig.rectified:
-                rect = rectification(rig)
+            fs.write("image_width", int(calibration.width))
+            fs.write("image_height", int(calibration.height))
+            fs.write("K1", calibration.K_left)
+            fs.write("D1", calibration.D_left.reshape(1, -1))
+            fs.write("K2", calibration.K_right)
+            fs.write("D2", calibration.D_right.reshape(1, -1))
+            fs.write("R", np.asarray(calibration.R, dtype=np.float64))
+            fs.write("T", np.asarray(calibration.T, dtype=np.float64).reshape(3, 1))
+            fs.write("rectified", int(calibration.rectified))
+            if calibration.rectified:
+                rect = rectification(calibration)
                 for name in ("R1", "R2", "P1", "P2", "Q"):
                     fs.write(name, np.asarray(getattr(rect, name), dtype=np.float64))
         finally:

@@ -86,16 +86,17 @@ class Dataset:
         """The stereo rig as rendered (:class:`~rgbd2scene.scene.rig.StereoRig`): ``dataset.json``'s
         ``"camera"`` record (CONVENTIONS 1.2), else the rectified pair of its K and baseline."""
         from rgbd2scene.geometry.camera import Camera
+        from rgbd2scene.geometry.stereo import StereoCalibration
         from rgbd2scene.scene.rig import StereoRig
 
         record = self.meta.get("camera")
         if isinstance(record, dict) and "left" in record:
             try:
-                return StereoRig(Camera.from_dict(record["left"]), 0.0, right=Camera.from_dict(record["right"]),
-                                 R=record["R"], T=record["T"])
+                return StereoRig(StereoCalibration(Camera.from_dict(record["left"]), Camera.from_dict(record["right"]),
+                                                   record["R"], record["T"]))
             except (KeyError, TypeError, ValueError) as exc:
                 raise UserError(f"{self.root / 'dataset.json'}: bad 'camera' record ({exc})") from None
-        return StereoRig(Camera.from_K(self.K, self.width, self.height), self.baseline)
+        return StereoRig.parallel(Camera.from_K(self.K, self.width, self.height), self.baseline)
 
     @property
     def rectified(self) -> bool:

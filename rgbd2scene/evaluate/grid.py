@@ -50,7 +50,7 @@ class MatchingGrid:
         if dataset.rectified:
             return cls(dataset.fx, dataset.baseline, dataset.fx)
         rig = dataset.rig
-        rect = rectification(rig)
+        rect = rectification(rig.calibration)
         rectify = {eye: rect.maps(eye, rig.camera(eye).K, rig.camera(eye).distortion) for eye in ("left", "right")}
         P1 = np.asarray(rect.P1, dtype=np.float64)
         f = float(P1[0, 0])
@@ -62,7 +62,7 @@ class MatchingGrid:
             # along a raw ray of unit z, the rectified depth is z_raw * rays_z: z_raw = f B / (d rays_z), and the
             # raw pixel's disparity fx B / z_raw = d * fx rays_z / f
             gain = np.where(ahead, dataset.fx * rays[..., 2] / f, np.nan)
-        return cls(f, float(np.linalg.norm(rig.T)), dataset.fx, rectify,
+        return cls(f, rig.baseline, dataset.fx, rectify,
                    (u.astype(np.float32), v.astype(np.float32)), gain)
 
     def pair(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

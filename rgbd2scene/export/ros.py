@@ -134,11 +134,10 @@ def camera_info_matrices(rig: StereoRig, eye: str) -> dict[str, np.ndarray]:
     """D, K, R, P of one eye: for the rectified pair D = 0, R = I, P = [K | 0] (P[0,3] = -fx·B on the right);
     for a raw pair the eye's own D and K, and R, P of its rectification (``cv2.stereoRectify``, alpha 0), as
     ROS's stereo_image_proc expects them."""
-    rect = rectification(rig)
+    rect = rectification(rig.calibration)
     R, P = rect.eye(eye)
     camera = rig.camera(eye)
-    d = np.asarray(camera.D, np.float64) if camera.D else np.zeros(5)
-    return {"d": d, "k": camera.K.ravel(), "r": np.asarray(R, np.float64).ravel(),
+    return {"d": camera.distortion, "k": camera.K.ravel(), "r": np.asarray(R, np.float64).ravel(),
             "p": np.asarray(P, np.float64).ravel(), "distortion_model": camera.distortion_model}
 
 

@@ -94,7 +94,7 @@ def stereo_rectification(K1, D1, K2, D2, size: tuple[int, int], R, T, alpha: flo
     """
     import cv2
 
-    args = (K1, D1, K2, D2, tuple(size), R, T)
+    args = (K1, D1, K2, D2, tuple(size), np.asarray(R, dtype=np.float64), np.asarray(T, dtype=np.float64))
     flags = cv2.CALIB_ZERO_DISPARITY
     width, height = size
     if keep_resolution:

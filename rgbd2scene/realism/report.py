@@ -27,12 +27,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rgbd2scene.capture.stereo import StereoCalibration, read_stereo_calibration
+from rgbd2scene.capture.stereo import read_stereo_calibration
 from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
 from rgbd2scene.evaluate.methods import DisparityRange, Elas, Sgbm
 from rgbd2scene.files.flowio import read_pfm
 from rgbd2scene.files.images import read_image
+from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.realism import measures as m
 from rgbd2scene.realism import stereo
 
@@ -257,7 +258,7 @@ def dataset_calibration(dataset: Dataset) -> StereoCalibration | None:
     if not (isinstance(camera, dict) and camera.get("rectified") is False):
         return None
     try:
-        return stereo.read_calibration_yaml(dataset.root / "calibration.yaml")
+        return read_stereo_calibration(dataset.root / "calibration.yaml")
     except (OSError, ValueError) as exc:
         raise UserError(f"{dataset.root / 'calibration.yaml'}: raw dataset without a usable calibration ({exc})") \
             from None

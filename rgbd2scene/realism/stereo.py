@@ -14,21 +14,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from rgbd2scene.capture.stereo import (
-    OPENCV_CALIB_KEYS,
-    OPENCV_SIZE_KEYS,
-    StereoCalibration,
-    make_calibration,
-    read_opencv_calibration,
-    rectify,
-    rectify_pair,
-)
+from rgbd2scene.capture.stereo import rectify, rectify_pair
 from rgbd2scene.evaluate.methods import DisparityRange, StereoMethod
+from rgbd2scene.geometry.stereo import StereoCalibration
 
 #: A left match is consistent when the right view's disparity at its match differs by at most this (pixels).
 LR_TOLERANCE_PX = 1.0
@@ -92,21 +84,6 @@ def score_pair(method: StereoMethod, left: np.ndarray, right: np.ndarray, mask: 
 def scaled_range(base: DisparityRange, factor: float) -> DisparityRange:
     """The same depths seen by a rig with ``factor`` times the focal length x baseline."""
     return DisparityRange(base.low * factor, base.high * factor)
-
-
-def read_calibration_yaml(path: str | Path) -> StereoCalibration:
-    """A dataset's ``calibration.yaml`` (CONVENTIONS section 2: K1 D1 K2 D2 R T, image_width, image_height).
-
-    Raises ``ValueError`` naming the missing key, ``OSError`` when unreadable."""
-    path = Path(path)
-    if not path.is_file():
-        raise OSError(f"{path}: not found")
-    values = read_opencv_calibration(path) or {}
-    for key in (*OPENCV_CALIB_KEYS, *OPENCV_SIZE_KEYS):
-        if values.get(key) is None:
-            raise ValueError(f"{path}: no {key}")
-    return make_calibration(values["K1"], values["D1"], values["K2"], values["D2"], values["R"], values["T"].ravel(),
-                            int(values["image_width"]), int(values["image_height"]))
 
 
 @dataclass

@@ -123,7 +123,7 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
     return {
         "width": intr.width, "height": intr.height, "frames": frames, "fps": description.path.fps,
         "baseline": description.rig.baseline, "K": intr.K.tolist(), "eyes": list(ds.EYES),
-        "intrinsics": intr.to_dict(), "D": list(description.rig.left.D),
+        "intrinsics": intr.to_dict(), "D": description.rig.left.distortion.tolist(),
         "camera": camera_record(description.rig),
         "objects": table["objects"], "classes": table["classes"], "tracked_frames": table["tracked_frames"],
         "scene": {"dir": rel.as_posix(),
@@ -146,8 +146,9 @@ def dataset_info(scene_dir: Path, out_dir: Path, description: SceneDescription, 
 
 def camera_record(rig: StereoRig) -> dict:
     """dataset.json's ``"camera"`` (CONVENTIONS 1.2): rectified or raw, both eyes' cameras, R and T."""
+    calib = rig.calibration
     return {"rectified": rig.rectified, "left": rig.left.to_dict(), "right": rig.right.to_dict(),
-            "distortion_model": rig.left.distortion_model, "R": [list(r) for r in rig.R], "T": list(rig.T)}
+            "distortion_model": rig.left.distortion_model, "R": [list(r) for r in calib.R], "T": list(calib.T)}
 
 
 def _check_resume(existing: dict, info: dict, options: RenderOptions, path: Path, only=None) -> None:
@@ -289,7 +290,7 @@ def prepare_render(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     else:
         ds.write_dataset_json(out, info)
     if not (out / CALIBRATION_YAML).is_file():
-        write_calibration(out, description.rig)
+        write_calibration(out, description.rig.calibration)
     ds.sweep_dead_runs(out)
     job = RenderJob(scene_dir, out, description, options, n, s, e, [])
     job.todo = [i for i in range(s, e) if not ds.frame_done(out, i, gt=job.with_gt, geometry=job.with_geometry)]
@@ -385,7 +386,7 @@ def render_gt_only(scene_dir: str | Path, out_dir: str | Path, options: RenderOp
     else:
         ds.write_dataset_json(out, info)
     if not (out / CALIBRATION_YAML).is_file():
-        write_calibration(out, description.rig)
+        write_calibration(out, description.rig.calibration)
     ds.sweep_dead_runs(out)
     model = ModelGroundTruth.of_scene(description, scene_dir, n, options.maps)
     bar = _progress_bar(e - s, progress)

@@ -19,6 +19,7 @@ from rgbd2scene.files.images import read_image, write_image
 from rgbd2scene.files.meshio import read_ply
 from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.geometry.raycast import raycaster
+from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.options import OptionError, flag_of, option, to_record
 from rgbd2scene.scene import folder
 from rgbd2scene.scene.config import ConfigError, SceneConfig, load_scene_config, parse_scene_config
@@ -114,10 +115,10 @@ class SceneOptions:
         if self.scope_calib is not None:
             return read_scope_calibration(self.scope_calib, self.size)
         if self.scope_camera is not None:
-            return StereoRig(load_camera(self.scope_camera), self.baseline)
+            return StereoRig.parallel(load_camera(self.scope_camera), self.baseline)
         intr = Intrinsics.from_fov(*self.size, self.fov_x_deg)
         intr.check("--fov/--size")
-        return StereoRig(intr, self.baseline)
+        return StereoRig.parallel(intr, self.baseline)
 
 
 def scene_config(options: SceneOptions) -> SceneConfig | None:
@@ -157,14 +158,14 @@ def capture_camera(record: dict, options: SceneOptions) -> tuple[StereoRig, np.n
     stereo = capture.get("stereo")
     try:
         if stereo is not None:
-            return StereoRig.from_calibration(stereo["calibration_values"]), np.eye(4)
+            return StereoRig(StereoCalibration.from_dict(stereo["calibration_values"])), np.eye(4)
         intrinsics = Intrinsics.from_dict(capture["intrinsics"])
     except (KeyError, TypeError, ValueError) as exc:
         raise UserError(f"--path capture: the scene's capture record has no camera ({exc!r}); give a capture "
                         "(--rgb/--depth or --left/--right/--stereo-calib) or a mesh folder made from one") from None
     if options.baseline <= 0 or options.baseline > 0.1:
         raise UserError(f"--baseline: {options.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
-    return StereoRig(Camera(intrinsics), options.baseline), np.eye(4)
+    return StereoRig.parallel(Camera(intrinsics), options.baseline), np.eye(4)
 
 
 def make_description(vertices: np.ndarray, triangles: np.ndarray, options: SceneOptions, rc=None,

@@ -46,7 +46,8 @@ class SchemaCheck(Check):
 
     def check_pair(self, pair: PairFrame) -> None:
         tol, rig = pair.run.tol, pair.run.rig
-        expect = rig.T_left_right  # the baseline along x for a rectified pair; [R | T] inverted for a raw one
+        # the baseline along x for a rectified pair; [R | T] inverted for a raw one
+        expect = rig.calibration.T_left_right
         T_left_right = invert_pose(pair.left.T_world_cam) @ pair.right.T_world_cam
         pair.add("schema", "both", "right pose vs left + rig (max abs)",
                  float(np.max(np.abs(T_left_right - expect))), tol.pose_m)
