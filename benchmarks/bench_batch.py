@@ -61,6 +61,9 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
+
+from results_file import write_results  # noqa: E402
 
 from rgbd2scene.batch.config import load_config  # noqa: E402
 from rgbd2scene.batch.engine import DaskEngine  # noqa: E402
@@ -435,7 +438,7 @@ def main() -> None:
     print("\n" + text)
     if out:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
-        Path(out).write_text(text)
+        write_results(out, text)
         print(f"report: {out}")
 
 

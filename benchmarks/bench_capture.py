@@ -40,6 +40,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
+
+from results_file import write_results  # noqa: E402
 
 from rgbd2scene.capture.camera import load_camera_json  # noqa: E402
 from rgbd2scene.capture.readers import load_capture, read_rgb  # noqa: E402
@@ -54,7 +57,6 @@ from rgbd2scene.capture.stereo import (  # noqa: E402
 )
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first  # noqa: E402
 from rgbd2scene.conventions import pixel_grid  # noqa: E402
-from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.reconstruct.fusion import frame_agreement, reconstruct_fused  # noqa: E402
 from rgbd2scene.reconstruct.pipeline import MeshOptions, reconstruct  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
@@ -324,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print(text)
     if args.out:
-        atomic.write_text(args.out, text)
+        write_results(args.out, text)
     return 0
 
 

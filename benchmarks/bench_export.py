@@ -24,6 +24,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
+
+from results_file import write_results  # noqa: E402
 
 from rgbd2scene.dataset import Dataset  # noqa: E402
 from rgbd2scene.export import FORMATS, RosOptions, export_ros  # noqa: E402
@@ -123,7 +126,7 @@ def main() -> int:
               f"{worst[5]:+.2f} kB/frame against {worst[6] * 1000 / frames:.1f} kB of output per frame.",
               "", f"Benchmark wall time {time.perf_counter() - t0:.0f} s.", ""]
     out_md.parent.mkdir(parents=True, exist_ok=True)
-    out_md.write_text("\n".join(lines))
+    write_results(out_md, "\n".join(lines))
     print(f"\nreport: {out_md}")
     return 0
 

@@ -46,8 +46,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_render as br  # noqa: E402
+from results_file import write_results  # noqa: E402
 
-from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.scene.folder import SCENE_BLEND  # noqa: E402
 from rgbd2scene.stages.render import render_dataset, render_gt_only  # noqa: E402
 
@@ -270,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").is_file() else []
     parts += ["", f"Load average at the end {' '.join(load)}; benchmark wall time {time.perf_counter() - t0:.0f} s."]
     if args.out:
-        atomic.write_text(args.out, "\n".join(parts) + "\n")
+        write_results(args.out, "\n".join(parts) + "\n")
         print(f"report: {args.out}\n{json.dumps(record, default=str)}")
     return 0
 

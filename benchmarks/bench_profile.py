@@ -47,8 +47,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from bench_render import PATH_FRAMES, SAMPLE, _machine, build_scene, mesh_vertices  # noqa: E402
+from results_file import write_results  # noqa: E402
 
-from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.stages.blender import run_task  # noqa: E402
 from rgbd2scene.stages.render import RenderOptions, load_scene, parse_size, render_model, render_task  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
@@ -200,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
              "\n".join(dn), "", "## Per frame", "", frames_report, "", f"Benchmark wall time {wall:.0f} s."]
     print(f"\nbenchmark wall time {wall:.0f} s", flush=True)
     if out_md:
-        atomic.write_text(out_md, "\n".join(parts) + "\n")
+        write_results(out_md, "\n".join(parts) + "\n")
         print(f"report: {out_md}")
     return 0
 

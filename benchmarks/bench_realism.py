@@ -60,8 +60,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
 
-from rgbd2scene.files.atomic import write_text  # noqa: E402
+from results_file import write_results  # noqa: E402
+
 from rgbd2scene.files.images import read_image  # noqa: E402
 from rgbd2scene.realism import measures  # noqa: E402
 from rgbd2scene.stages.render import render_dataset  # noqa: E402
@@ -276,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     parts += ["", "## Summary", "", *[f"- {v}" for v in verdicts], "", cost, "", f"Benchmark wall time {wall:.0f} s."]
     print(f"\nbenchmark wall time {wall:.0f} s", flush=True)
     if out_md:
-        write_text(out_md, "\n".join(parts) + "\n")
+        write_results(out_md, "\n".join(parts) + "\n")
         print(f"report: {out_md}")
     return 0
 

@@ -61,8 +61,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
 
-from rgbd2scene.files import atomic  # noqa: E402
+from results_file import write_results  # noqa: E402
+
 from rgbd2scene.rendering import DENOISERS  # noqa: E402
 from rgbd2scene.sensor import SensorOptions  # noqa: E402
 from rgbd2scene.stages.blender import run_task  # noqa: E402
@@ -704,7 +706,7 @@ def main(argv: list[str] | None = None) -> int:
     parts += ["", f"Benchmark wall time {wall:.0f} s."]
     print(f"\nbenchmark wall time {wall:.0f} s", flush=True)
     if out_md:
-        atomic.write_text(out_md, "\n".join(parts) + "\n")
+        write_results(out_md, "\n".join(parts) + "\n")
         print(f"report: {out_md}")
     return 0
 

@@ -31,8 +31,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
 
-from rgbd2scene.files.atomic import write_text  # noqa: E402
+from results_file import write_results  # noqa: E402
+
 from rgbd2scene.files.images import read_image  # noqa: E402
 from rgbd2scene.sensor import SensorOptions  # noqa: E402
 from rgbd2scene.sensor.estimate import (  # noqa: E402
@@ -132,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     out = Path(args.out) if args.out else (WORK / "sensor.md" if args.quick or args.no_render
                                            else ROOT / "benchmarks" / "results" / "sensor.md")
-    write_text(out, text)
+    write_results(out, text)
     print(f"-> {out}")
     return 0
 

@@ -35,6 +35,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
+
+from results_file import write_results  # noqa: E402
 
 from rgbd2scene.cli import main as cli  # noqa: E402
 from rgbd2scene.dataset import Dataset  # noqa: E402
@@ -189,7 +192,7 @@ def main() -> int:
     out_md = Path(args.out) if args.out else (WORK / "stereo.md" if args.quick else ROOT / "benchmarks" / "results"
                                               / "stereo.md")
     out_md.parent.mkdir(parents=True, exist_ok=True)
-    out_md.write_text("\n".join(lines))
+    write_results(out_md, "\n".join(lines))
     print("\n".join(lines))
     print(f"report: {out_md}")
     return 0

@@ -41,8 +41,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
 
-from rgbd2scene.files.atomic import write_text  # noqa: E402
+from results_file import write_results  # noqa: E402
+
 from rgbd2scene.files.images import write_image  # noqa: E402
 from rgbd2scene.versions import software_versions  # noqa: E402
 
@@ -135,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
                  "defaults were tuned on the left frame).", "", table, "", *[f"- {line}" for line in lines], "",
                  f"Notes: {'; '.join(report['notes']) or 'none'}. Software: python {versions['python']}, bpy "
                  f"{versions['bpy']}; {timing}."]
-        write_text(out_md, "\n".join(parts) + "\n")
+        write_results(out_md, "\n".join(parts) + "\n")
         print(f"report: {out_md}")
     return 0
 

@@ -35,9 +35,9 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_twin import HAMLYN, LEFT, RIGHT, VALID, _cli  # noqa: E402
+from results_file import write_results  # noqa: E402
 
 from rgbd2scene.dataset.reader import Dataset  # noqa: E402
-from rgbd2scene.files.atomic import write_text  # noqa: E402
 from rgbd2scene.files.images import read_image  # noqa: E402
 from rgbd2scene.sensor import SensorOptions  # noqa: E402
 from rgbd2scene.sensor.estimate import (  # noqa: E402
@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(parts)
     print(text)
     out = Path(args.out) if args.out else ROOT / "benchmarks" / "results" / "vignetting.md"
-    write_text(out, text)
+    write_results(out, text)
     print(f"-> {out}")
     return 0
 
