@@ -88,10 +88,12 @@ from scipy import ndimage as ndi
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # results_file
+
+from results_file import write_results  # noqa: E402
 
 from rgbd2scene.capture.readers import read_depth, read_rgb  # noqa: E402
 from rgbd2scene.capture.sensors import SENSORS  # noqa: E402
-from rgbd2scene.files import atomic  # noqa: E402
 from rgbd2scene.reconstruct.fill import (  # noqa: E402
     fill_background,
     fill_biharmonic,
@@ -551,25 +553,9 @@ def main(argv: list[str] | None = None) -> int:
         results = split["results"]
         out = str(ROOT / "benchmarks" / "results" / results) if results and not args.quick else ""
     if out:
-        text = text.replace("## Every row", kept_notes(Path(out)) + "## Every row", 1)
-        atomic.write_text(out, text)
+        write_results(out, text, before="## Every row")
         print(f"wrote {out}")
     return 0
-
-
-#: The heading of the results file's hand-written section, which a rerun keeps (:func:`kept_notes`).
-NOTES_HEADING = "## Notes on this run (written by hand)"
-
-
-def kept_notes(path: Path) -> str:
-    """The hand-written notes of an earlier results file at ``path`` (from :data:`NOTES_HEADING` to the next
-    section), to be kept before the rows of a rerun and updated by hand; empty if there are none."""
-    text = path.read_text() if path.is_file() else ""
-    start = text.find(NOTES_HEADING)
-    if start < 0:
-        return ""
-    end = text.find("\n## ", start + len(NOTES_HEADING))
-    return text[start:end if end >= 0 else len(text)].rstrip() + "\n\n"
 
 
 def _cpus() -> int:
