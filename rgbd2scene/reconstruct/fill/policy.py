@@ -75,7 +75,8 @@ docstring held until session 10).
    edge a thin plate carries inverse depth on towards zero.
 
 Time: all of ``auto``'s solves share one pool of a thread per core, the longest (the thin plate of holes
-and band, the guided holes' fills) started before the evidence is in; the symmetric positive definite
+and band, the guided holes' fills) started before the evidence is in, the band's other fills as soon as its
+own evidence is in (not after the holes'); the symmetric positive definite
 systems are factorised with a minimum degree ordering. On the TUM frame's own holes (640x480, 2 cores),
 session 10: 0.76-0.88 s wall, 1.30-1.51 s CPU (``benchmarks/results/fill.md``).
 
@@ -111,6 +112,7 @@ from rgbd2scene.reconstruct.fill.holes import (
 from rgbd2scene.reconstruct.fill.planes import planar_fill
 from rgbd2scene.reconstruct.fill.solvers import (
     as_depth,
+    check_rgb_size,
     clip_to_rim,
     clip_to_surround,
     fill_background,
@@ -121,7 +123,6 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_inpaint,
     fill_nyu_colorization,
     fill_row_background,
-    grey_levels,
 )
 
 FILL_METHODS = ("auto", "inpaint", "colorization", "nyu_colorization", "biharmonic", "background", "none")
@@ -217,7 +218,7 @@ def fill_depth(
     min_radius = 0.05 * min(h, w) if min_radius is None else float(min_radius)
     small_radius = 0.025 * min(h, w) if small_radius is None else float(small_radius)
     fx = KINECT_FX_640 * w / 640.0 if fx is None else float(fx)
-    grey_levels(rgb, depth.shape)  # checks the RGB size
+    check_rgb_size(rgb, depth.shape)
     valid = valid_depth(depth)
     work = np.where(valid, depth, np.nan).astype(np.float32)
 
@@ -333,11 +334,12 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
             ThreadPoolExecutor(max_workers=1) as side:
         early = _submit_fills(solves, out, rgb, ahead)
-        band_ways = side.submit(choose_band, work, rgb, edge, band, border_width, solves) if edge.any() else None
+        band_fills = side.submit(_band_fills, solves, work, out, rgb, edge, band, border_width) if edge.any() else None
         planar = (rest & (wide & ~lit)[labels]) if guided and rgb is not None else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
-        ways = np.zeros(work.shape, dtype=int) if band_ways is None else band_ways.result()
+        ways, ways_used, band_jobs = ((np.zeros(work.shape, dtype=int), [], {}) if band_fills is None
+                                      else band_fills.result())
         per_pixel = choice[labels]
         chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
         needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
@@ -347,23 +349,13 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         joint = "biharmonic" in jobs and edge.any()
         if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
             jobs["biharmonic"] = (rest | edge, across)
-        ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
-        for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
-            # only where taken, and the band beside it: half a stretch for the costly NYU fill, a whole one for the
-            # membrane, whose free end at the cut reaches further (half a stretch: tuning rows up to 0.014 worse)
-            taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
-            beside = BAND_STRETCH if b == "harmonic" else BAND_STRETCH // 2
-            where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= beside)
-            jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
         for name in list(early):  # the same masks (the thin plate's rest | edge is rest where there is no band)
             if name in jobs:
                 del jobs[name]
             else:  # not chosen after all: unused (the pool waits for it at its end if it has started)
                 early.pop(name).cancel()
-        # the costly NYU fills first, then the larger first, so that the last to start is a short one
-        order = sorted(jobs, key=lambda name: (not name.endswith("nyu_colorization"), -int(jobs[name][0].sum())))
-        early.update(_submit_fills(solves, out, rgb, {name: jobs[name] for name in order}))
-        fills = {name: future.result() for name, future in early.items()}
+        early.update(_submit_fills(solves, out, rgb, _costly_first(jobs)))
+        fills = {name: future.result() for name, future in {**early, **band_jobs}.items()}
     if joint:
         out[edge] = fills["biharmonic"][edge]
     for k in chosen:
@@ -390,6 +382,34 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts, shadow
+
+
+def _costly_first(jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``jobs`` (:func:`_base_fills`) in the order to submit them: the costly NYU fills first, then the larger first,
+    so that the last to start is a short one."""
+    order = sorted(jobs, key=lambda name: (not name.endswith("nyu_colorization"), -int(jobs[name][0].sum())))
+    return {name: jobs[name] for name in order}
+
+
+def _band_fills(pool: Executor, work, out, rgb, edge, band, border_width):
+    """The border band's fill per stretch (:func:`choose_band`) and the fills it takes besides the thin plate,
+    submitted to ``pool`` as soon as the choice is in, beside the holes' evidence rather than after it (the last
+    of them otherwise ran alone at the end of the fill, one core idle).
+
+    Returns the choice per pixel of ``edge`` (0: the thin plate, none of these fills), the indices of
+    :data:`BAND_NAMES` it takes other than 0, and the futures of the fills, named ``"band:<fill>"``.
+    """
+    ways = choose_band(work, rgb, edge, band, border_width, pool)
+    ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
+    jobs = {}
+    for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
+        # only where taken, and the band beside it: half a stretch for the costly NYU fill, a whole one for the
+        # membrane, whose free end at the cut reaches further (half a stretch: tuning rows up to 0.014 worse)
+        taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
+        beside = BAND_STRETCH if b == "harmonic" else BAND_STRETCH // 2
+        where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= beside)
+        jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))
+    return ways, ways_used, _submit_fills(pool, out, rgb, _costly_first(jobs))
 
 
 #: What ``auto`` chooses from per hole: one base fill, or the mean of two (:func:`choose_per_hole`).
