@@ -513,7 +513,7 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
                     copies: int = 3, pool: Executor | None = None) -> np.ndarray:
     """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
 
-    Copies of each hole are laid onto valid depth nearby, each wholly on pixels at least
+    Copies of each narrow hole and highlight are laid onto valid depth nearby, each wholly on pixels at least
     :data:`COPY_CLEARANCE` px from any invalid one (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`),
     and filled with the candidates: all copies at once, one solve per base fill. Narrow holes and
     highlights take the smooth fill (harmonic or biharmonic) with the least error over all their copies
@@ -546,10 +546,10 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     choice[traits.wide & (rgb is None)] = NAMES.index("biharmonic")
     if not smooth.any():  # the copies only choose the smooth fill
         return choice
-    err, npx = _copy_errors(depth, labels, traits, COPY_CLEARANCE, 1.0, copies, pool)
+    smooth_only = np.where(smooth[labels], labels, 0)  # the other holes' copies would take room and solve time
+    err, npx = _copy_errors(depth, smooth_only, traits, COPY_CLEARANCE, 1.0, copies, pool)
     if not (smooth & (npx > 0)).any():
-        narrow_only = np.where(smooth[labels], labels, 0)
-        err, npx = _copy_errors(depth, narrow_only, traits, 2, 0.6, copies, pool)
+        err, npx = _copy_errors(depth, smooth_only, traits, 2, 0.6, copies, pool)
     scored = smooth & (npx > 0)
     if scored.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
         best = int((err[scored] * npx[scored, None]).sum(axis=0).argmin())
