@@ -221,6 +221,8 @@ def fill_depth(
     check_rgb_size(rgb, depth.shape)
     valid = valid_depth(depth)
     work = np.where(valid, depth, np.nan).astype(np.float32)
+    # auto's highlights (a distance transform over the image) beside the classification of the holes and the shadows
+    shine = _started(highlight_pixels, rgb, ~valid_depth(work)) if method == "auto" and rgb is not None else None
 
     t1 = time.perf_counter()
     holes = classify_holes(work, border_width=border_width, min_radius=min_radius, rgb=rgb)
@@ -245,8 +247,8 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts, shadow = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius,
-                                    copies, border_width)
+        out, counts, shadow = _auto(work, rgb, shine, todo, band, step, fx, sensor.shadow_baselines(),
+                                    small_radius, copies, border_width)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
@@ -281,11 +283,21 @@ def fill_depth(
     return FillResult(out.astype(np.float32), filled, used, settings, stats, parts)
 
 
-def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, border_width):
+def _started(fn, *args) -> Future:
+    """``fn(*args)`` running on a thread of its own; its result (or its exception) comes from the future."""
+    thread = ThreadPoolExecutor(max_workers=1)
+    try:
+        return thread.submit(fn, *args)
+    finally:
+        thread.shutdown(wait=False)  # the thread ends with the job
+
+
+def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copies, border_width):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; every other interior
     hole -> the fill :func:`choose_per_hole` picks for it; the band -> per stretch the fill
     :func:`choose_band` picks (the thin plate where the holes' solve holds it). The rest of the band is
-    left to the caller.
+    left to the caller. ``shine``: the future of the invalid pixels' highlights
+    (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`), None without RGB.
 
     Returns the filled depth, the number of pixels each fill filled and the shadow pixels.
     """
@@ -314,10 +326,9 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
     inscribed = cv2.distanceTransform(rest.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     wide[labels[inscribed > small_radius]] = True
     lit = np.zeros(n + 1, dtype=bool)
-    if rgb is not None:
-        shine = highlight_pixels(rgb, ~valid_depth(work))
+    if shine is not None:
         pixels = np.bincount(labels.ravel(), minlength=n + 1)
-        lit = 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) >= pixels
+        lit = 2 * np.bincount(labels.ravel(), weights=shine.result().ravel(), minlength=n + 1) >= pixels
         lit[0] = False
     edge = band & ~shadow
     across = stepped[labels] & rest
