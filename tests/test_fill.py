@@ -1008,6 +1008,30 @@ def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_o
     assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise
 
 
+def test_copies_are_laid_only_of_the_holes_whose_fill_they_choose(monkeypatch):
+    """A wide hole takes the guided fill (with RGB) or the biharmonic one (without) whatever its copies show: its
+    copies would only take the narrow holes' room and time in the copies' solves."""
+    from rgbd2scene.reconstruct.fill import policy
+
+    copied = []
+
+    def spy(labels, *args, **kwargs):
+        copied.append(set(np.unique(labels)) - {0})
+        return hole_copies(labels, *args, **kwargs)
+
+    monkeypatch.setattr(policy, "hole_copies", spy)
+    noisy = smooth_surface() * (1 + 0.01 * np.random.default_rng(1).standard_normal((H, W))).astype(np.float32)
+    holes = blobs(5, n=6, r=4) | disc(60, 80, 12)
+    labels, n = components(holes)
+    wide = np.zeros(n + 1, bool)
+    wide[labels[60, 80]] = True
+    traits = HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool))
+    for rgb in (None, np.full((H, W, 3), 128, np.uint8)):
+        copied.clear()
+        choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), rgb, labels, traits)
+        assert copied and all(c == set(range(1, n + 1)) - {labels[60, 80]} for c in copied)
+
+
 def test_single_blas_thread_sets_every_blas_to_one_thread_and_back():
     """The fill's solves run side by side on one BLAS thread each; the thread counts come back afterwards."""
     import scipy.sparse.linalg  # noqa: F401 - SciPy's own OpenBLAS

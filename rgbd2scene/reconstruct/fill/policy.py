@@ -75,7 +75,8 @@ docstring held until session 10).
    edge a thin plate carries inverse depth on towards zero.
 
 Time: all of ``auto``'s solves share one pool of a thread per core, the longest (the thin plate of holes
-and band, the guided holes' fills) started before the evidence is in; the symmetric positive definite
+and band, the guided holes' fills) started before the evidence is in, the band's other fills as soon as its
+own evidence is in (not after the holes'); the symmetric positive definite
 systems are factorised with a minimum degree ordering. On the TUM frame's own holes (640x480, 2 cores),
 session 10: 0.76-0.88 s wall, 1.30-1.51 s CPU (``benchmarks/results/fill.md``).
 
@@ -111,6 +112,7 @@ from rgbd2scene.reconstruct.fill.holes import (
 from rgbd2scene.reconstruct.fill.planes import planar_fill
 from rgbd2scene.reconstruct.fill.solvers import (
     as_depth,
+    check_rgb_size,
     clip_to_rim,
     clip_to_surround,
     fill_background,
@@ -121,7 +123,6 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_inpaint,
     fill_nyu_colorization,
     fill_row_background,
-    grey_levels,
 )
 
 FILL_METHODS = ("auto", "inpaint", "colorization", "nyu_colorization", "biharmonic", "background", "none")
@@ -217,9 +218,11 @@ def fill_depth(
     min_radius = 0.05 * min(h, w) if min_radius is None else float(min_radius)
     small_radius = 0.025 * min(h, w) if small_radius is None else float(small_radius)
     fx = KINECT_FX_640 * w / 640.0 if fx is None else float(fx)
-    grey_levels(rgb, depth.shape)  # checks the RGB size
+    check_rgb_size(rgb, depth.shape)
     valid = valid_depth(depth)
     work = np.where(valid, depth, np.nan).astype(np.float32)
+    # auto's highlights (a distance transform over the image) beside the classification of the holes and the shadows
+    shine = _started(highlight_pixels, rgb, ~valid_depth(work)) if method == "auto" and rgb is not None else None
 
     t1 = time.perf_counter()
     holes = classify_holes(work, border_width=border_width, min_radius=min_radius, rgb=rgb)
@@ -244,8 +247,8 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts, shadow = _auto(work, rgb, todo, band, step, fx, sensor.shadow_baselines(), small_radius,
-                                    copies, border_width)
+        out, counts, shadow = _auto(work, rgb, shine, todo, band, step, fx, sensor.shadow_baselines(),
+                                    small_radius, copies, border_width)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
@@ -280,11 +283,21 @@ def fill_depth(
     return FillResult(out.astype(np.float32), filled, used, settings, stats, parts)
 
 
-def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, border_width):
+def _started(fn, *args) -> Future:
+    """``fn(*args)`` running on a thread of its own; its result (or its exception) comes from the future."""
+    thread = ThreadPoolExecutor(max_workers=1)
+    try:
+        return thread.submit(fn, *args)
+    finally:
+        thread.shutdown(wait=False)  # the thread ends with the job
+
+
+def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copies, border_width):
     """``auto`` (module docstring): shadow rows (the band's too) -> their far end; every other interior
     hole -> the fill :func:`choose_per_hole` picks for it; the band -> per stretch the fill
     :func:`choose_band` picks (the thin plate where the holes' solve holds it). The rest of the band is
-    left to the caller.
+    left to the caller. ``shine``: the future of the invalid pixels' highlights
+    (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`), None without RGB.
 
     Returns the filled depth, the number of pixels each fill filled and the shadow pixels.
     """
@@ -313,10 +326,9 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
     inscribed = cv2.distanceTransform(rest.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     wide[labels[inscribed > small_radius]] = True
     lit = np.zeros(n + 1, dtype=bool)
-    if rgb is not None:
-        shine = highlight_pixels(rgb, ~valid_depth(work))
+    if shine is not None:
         pixels = np.bincount(labels.ravel(), minlength=n + 1)
-        lit = 2 * np.bincount(labels.ravel(), weights=shine.ravel(), minlength=n + 1) >= pixels
+        lit = 2 * np.bincount(labels.ravel(), weights=shine.result().ravel(), minlength=n + 1) >= pixels
         lit[0] = False
     edge = band & ~shadow
     across = stepped[labels] & rest
@@ -333,11 +345,12 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
             ThreadPoolExecutor(max_workers=1) as side:
         early = _submit_fills(solves, out, rgb, ahead)
-        band_ways = side.submit(choose_band, work, rgb, edge, band, border_width, solves) if edge.any() else None
+        band_fills = side.submit(_band_fills, solves, work, out, rgb, edge, band, border_width) if edge.any() else None
         planar = (rest & (wide & ~lit)[labels]) if guided and rgb is not None else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
-        ways = np.zeros(work.shape, dtype=int) if band_ways is None else band_ways.result()
+        ways, ways_used, band_jobs = ((np.zeros(work.shape, dtype=int), [], {}) if band_fills is None
+                                      else band_fills.result())
         per_pixel = choice[labels]
         chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
         needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
@@ -347,23 +360,13 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         joint = "biharmonic" in jobs and edge.any()
         if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
             jobs["biharmonic"] = (rest | edge, across)
-        ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
-        for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
-            # only where taken, and the band beside it: half a stretch for the costly NYU fill, a whole one for the
-            # membrane, whose free end at the cut reaches further (half a stretch: tuning rows up to 0.014 worse)
-            taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
-            beside = BAND_STRETCH if b == "harmonic" else BAND_STRETCH // 2
-            where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= beside)
-            jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))  # beside the holes' solves, in the pool
         for name in list(early):  # the same masks (the thin plate's rest | edge is rest where there is no band)
             if name in jobs:
                 del jobs[name]
             else:  # not chosen after all: unused (the pool waits for it at its end if it has started)
                 early.pop(name).cancel()
-        # the costly NYU fills first, then the larger first, so that the last to start is a short one
-        order = sorted(jobs, key=lambda name: (not name.endswith("nyu_colorization"), -int(jobs[name][0].sum())))
-        early.update(_submit_fills(solves, out, rgb, {name: jobs[name] for name in order}))
-        fills = {name: future.result() for name, future in early.items()}
+        early.update(_submit_fills(solves, out, rgb, _costly_first(jobs)))
+        fills = {name: future.result() for name, future in {**early, **band_jobs}.items()}
     if joint:
         out[edge] = fills["biharmonic"][edge]
     for k in chosen:
@@ -390,6 +393,34 @@ def _auto(work, rgb, todo, band, step, fx, baselines, small_radius, copies, bord
         for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts, shadow
+
+
+def _costly_first(jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``jobs`` (:func:`_base_fills`) in the order to submit them: the costly NYU fills first, then the larger first,
+    so that the last to start is a short one."""
+    order = sorted(jobs, key=lambda name: (not name.endswith("nyu_colorization"), -int(jobs[name][0].sum())))
+    return {name: jobs[name] for name in order}
+
+
+def _band_fills(pool: Executor, work, out, rgb, edge, band, border_width):
+    """The border band's fill per stretch (:func:`choose_band`) and the fills it takes besides the thin plate,
+    submitted to ``pool`` as soon as the choice is in, beside the holes' evidence rather than after it (the last
+    of them otherwise ran alone at the end of the fill, one core idle).
+
+    Returns the choice per pixel of ``edge`` (0: the thin plate, none of these fills), the indices of
+    :data:`BAND_NAMES` it takes other than 0, and the futures of the fills, named ``"band:<fill>"``.
+    """
+    ways = choose_band(work, rgb, edge, band, border_width, pool)
+    ways_used = [k for k in range(1, len(BAND_NAMES)) if (ways == k).any()]
+    jobs = {}
+    for b in sorted({b for k in ways_used for b in BAND_CANDIDATES[BAND_NAMES[k]]} - {"biharmonic"}):
+        # only where taken, and the band beside it: half a stretch for the costly NYU fill, a whole one for the
+        # membrane, whose free end at the cut reaches further (half a stretch: tuning rows up to 0.014 worse)
+        taken = np.isin(ways, [k for k in ways_used if b in BAND_CANDIDATES[BAND_NAMES[k]]])
+        beside = BAND_STRETCH if b == "harmonic" else BAND_STRETCH // 2
+        where = edge & (cv2.distanceTransform((~taken).astype(np.uint8), cv2.DIST_C, 3) <= beside)
+        jobs[f"band:{b}"] = (where, np.zeros(edge.shape, dtype=bool))
+    return ways, ways_used, _submit_fills(pool, out, rgb, _costly_first(jobs))
 
 
 #: What ``auto`` chooses from per hole: one base fill, or the mean of two (:func:`choose_per_hole`).
@@ -493,7 +524,7 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
                     copies: int = 3, pool: Executor | None = None) -> np.ndarray:
     """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
 
-    Copies of each hole are laid onto valid depth nearby, each wholly on pixels at least
+    Copies of each narrow hole and highlight are laid onto valid depth nearby, each wholly on pixels at least
     :data:`COPY_CLEARANCE` px from any invalid one (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`),
     and filled with the candidates: all copies at once, one solve per base fill. Narrow holes and
     highlights take the smooth fill (harmonic or biharmonic) with the least error over all their copies
@@ -526,10 +557,10 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     choice[traits.wide & (rgb is None)] = NAMES.index("biharmonic")
     if not smooth.any():  # the copies only choose the smooth fill
         return choice
-    err, npx = _copy_errors(depth, labels, traits, COPY_CLEARANCE, 1.0, copies, pool)
+    smooth_only = np.where(smooth[labels], labels, 0)  # the other holes' copies would take room and solve time
+    err, npx = _copy_errors(depth, smooth_only, traits, COPY_CLEARANCE, 1.0, copies, pool)
     if not (smooth & (npx > 0)).any():
-        narrow_only = np.where(smooth[labels], labels, 0)
-        err, npx = _copy_errors(depth, narrow_only, traits, 2, 0.6, copies, pool)
+        err, npx = _copy_errors(depth, smooth_only, traits, 2, 0.6, copies, pool)
     scored = smooth & (npx > 0)
     if scored.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
         best = int((err[scored] * npx[scored, None]).sum(axis=0).argmin())

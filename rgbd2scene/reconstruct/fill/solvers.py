@@ -73,12 +73,18 @@ def _depth_range(depth: np.ndarray, known: np.ndarray) -> tuple[float, float]:
     return 0.5 * float(vals.min()), 2.0 * float(vals.max())
 
 
+def check_rgb_size(rgb: np.ndarray | None, shape: tuple[int, int]) -> None:
+    """ValueError unless ``rgb`` (if any) has the depth's ``shape`` (H, W)."""
+    size = shape if rgb is None else np.shape(rgb)[:2]
+    if size != shape:
+        raise ValueError(f"RGB is {size[1]}x{size[0]} but depth is {shape[1]}x{shape[0]}")
+
+
 def grey_levels(rgb: np.ndarray | None, shape: tuple[int, int]) -> np.ndarray | None:
     if rgb is None:
         return None
     rgb = np.asarray(rgb)
-    if rgb.shape[:2] != shape:
-        raise ValueError(f"RGB is {rgb.shape[1]}x{rgb.shape[0]} but depth is {shape[1]}x{shape[0]}")
+    check_rgb_size(rgb, shape)
     if rgb.ndim == 2:
         g = rgb.astype(np.float64)
     else:
