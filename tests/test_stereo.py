@@ -101,6 +101,31 @@ def test_a_rotation_written_with_few_decimals_is_replaced_by_the_nearest_rotatio
     assert np.array_equal(np.asarray(exact.R), np.asarray(data["R"], dtype=np.float64))
 
 
+def test_a_slightly_scaled_rotation_is_replaced_and_the_eyes_must_share_one_size():
+    """R = 1.0004 I (orthogonality off by 8e-4; det off by 1.2e-3) loaded before the one calibration type and
+    still does, as the nearest rotation; a pair whose eyes differ in image size is refused (resized() keeps
+    one size for both)."""
+    data = synthetic_calibration()
+    calib = StereoCalibration.from_dict({**data, "R": (1.0004 * np.asarray(data["R"])).tolist()})
+    assert np.allclose(np.asarray(calib.R), np.asarray(data["R"]), atol=1e-12)
+    exact = StereoCalibration.from_dict(data)
+    with pytest.raises(ValueError, match="differ in size"):
+        StereoCalibration(exact.left, exact.right.resized(160, 120), exact.R, exact.T)
+
+
+def test_path_capture_names_a_bad_stereo_calibration_in_the_capture_record():
+    from rgbd2scene.errors import UserError
+    from rgbd2scene.stages.scene import SceneOptions, capture_camera
+
+    data = synthetic_calibration()
+    data["R"] = [[1, 2e-3, 0], [0, 1, 0], [0, 0, 1]]
+    with pytest.raises(UserError, match=r"^--path capture: the stereo calibration in the scene's capture record: "
+                                        r"R is not a rotation"):
+        capture_camera({"capture": {"stereo": {"calibration_values": data}}}, SceneOptions())
+    with pytest.raises(UserError, match=r"^--path capture: the scene's capture record has no camera \(no 'intrinsics'\)"):
+        capture_camera({"capture": {}}, SceneOptions())
+
+
 def _write_calibration(path: Path, data: dict) -> Path:
     """``data`` (a calibration JSON object) as a JSON file, or for ``.yaml`` as OpenCV FileStorage."""
     if path.suffix == ".json":

@@ -29,7 +29,7 @@ JSON_KEYS = ("K_left", "D_left", "K_right", "D_right", "R", "T")
 #: :meth:`StereoCalibration.to_dict` also report: kept in the file, not used).
 SIZE_KEYS = ("image_size", "width", "height")
 INFO_KEYS = ("baseline_m", "rms", "E", "F", "R1", "R2", "P1", "P2", "Q")
-#: R must be a rotation within this (max entry of R^T R - I, and |det R - 1|).
+#: R must be a rotation within this (max entry of R^T R - I, with det R > 0).
 ROTATION_TOLERANCE = 1e-6
 #: A given R off a rotation by more than :data:`ROTATION_TOLERANCE` but at most this (a calibration written as
 #: text with 4-6 decimals: Hamlyn's ``calib.l2r.4x4`` files are off by up to 1.5e-6) is replaced by the nearest
@@ -57,6 +57,9 @@ class StereoCalibration:
                 object.__setattr__(self, eye, Camera(getattr(self, eye)))
         object.__setattr__(self, "R", tuple(map(tuple, np.asarray(self.R, dtype=np.float64).reshape(3, 3).tolist())))
         object.__setattr__(self, "T", tuple(np.asarray(self.T, dtype=np.float64).reshape(3).tolist()))
+        if (self.right.width, self.right.height) != (self.left.width, self.left.height):  # resized() keeps one size
+            raise ValueError(f"the eyes' images differ in size ({self.left.width}x{self.left.height} and "
+                             f"{self.right.width}x{self.right.height})")
 
     @classmethod
     def parallel(cls, camera: Camera | Intrinsics, baseline: float) -> StereoCalibration:
@@ -77,7 +80,7 @@ class StereoCalibration:
         cameras = [Camera(_intrinsics(K, k, width, height), _distortion(D, d))
                    for K, D, k, d in ((K_left, D_left, k_left, d_left), (K_right, D_right, k_right, d_right))]
         R = _matrix(R, (3, 3), r_key)
-        off = _rotation_error(R) if np.isfinite(R).all() else 0.0  # non-finite: refused by check()
+        off = _rotation_error(R)
         if ROTATION_TOLERANCE < off <= ROTATION_SNAP:
             R = _nearest_rotation(R)
             warn(f"{source + ': ' if source else ''}{r_key} is off a rotation by {off:.2g} (rounded text?); "
@@ -212,8 +215,9 @@ class StereoCalibration:
 
 
 def _rotation_error(R: np.ndarray) -> float:
-    """How far R is from a rotation: the larger of max |R^T R - I| and |det R - 1| (NaN for non-finite R)."""
-    return float(max(np.abs(R.T @ R - np.eye(3)).max(), abs(np.linalg.det(R) - 1)))
+    """How far R is from a rotation: max |R^T R - I| (its orthogonality; a scaled R counts as its scale, as
+    before session 11), infinite for a reflection (det R <= 0)."""
+    return float(np.abs(R.T @ R - np.eye(3)).max()) if np.linalg.det(R) > 0 else math.inf
 
 
 def _nearest_rotation(R: np.ndarray) -> np.ndarray:

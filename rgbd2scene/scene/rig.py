@@ -1,8 +1,9 @@
 """The stereo endoscope: its calibrated pair (:class:`~rgbd2scene.geometry.stereo.StereoCalibration`) and the
 clip range it renders with.
 
-The default, a rectified pair, is Blender multiview PARALLEL with pivot LEFT: both eyes share the left camera,
-R = I, T = (-B, 0, 0), so the right eye sits +B along the left eye's x axis.
+A rectified rig (:meth:`StereoRig.parallel`, the endoscope default :meth:`StereoRig.endoscope`) is Blender
+multiview PARALLEL with pivot LEFT: both eyes share the left camera, R = I, T = (-B, 0, 0), so the right eye sits
++B along the left eye's x axis.
 """
 
 from __future__ import annotations

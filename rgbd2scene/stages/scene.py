@@ -156,13 +156,18 @@ def capture_camera(record: dict, options: SceneOptions) -> tuple[StereoRig, np.n
     """
     capture = record.get("capture") or {}
     stereo = capture.get("stereo")
+    no_camera = ("--path capture: the scene's capture record has no camera ({}); give a capture (--rgb/--depth or "
+                 "--left/--right/--stereo-calib) or a mesh folder made from one")
     try:
         if stereo is not None:
-            return StereoRig(StereoCalibration.from_dict(stereo["calibration_values"])), np.eye(4)
+            calibration = StereoCalibration.from_dict(stereo["calibration_values"], source="the capture record")
+            return StereoRig(calibration), np.eye(4)
         intrinsics = Intrinsics.from_dict(capture["intrinsics"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise UserError(f"--path capture: the scene's capture record has no camera ({exc!r}); give a capture "
-                        "(--rgb/--depth or --left/--right/--stereo-calib) or a mesh folder made from one") from None
+    except (KeyError, TypeError) as exc:
+        raise UserError(no_camera.format(f"no {exc}" if isinstance(exc, KeyError) else exc)) from None
+    except ValueError as exc:
+        what = "stereo calibration" if stereo is not None else "intrinsics"
+        raise UserError(f"--path capture: the {what} in the scene's capture record: {exc}") from None
     if options.baseline <= 0 or options.baseline > 0.1:
         raise UserError(f"--baseline: {options.baseline} m is not a plausible endoscope baseline (0-0.1 m)")
     return StereoRig.parallel(Camera(intrinsics), options.baseline), np.eye(4)
