@@ -122,7 +122,8 @@ def test_path_capture_names_a_bad_stereo_calibration_in_the_capture_record():
     with pytest.raises(UserError, match=r"^--path capture: the stereo calibration in the scene's capture record: "
                                         r"R is not a rotation"):
         capture_camera({"capture": {"stereo": {"calibration_values": data}}}, SceneOptions())
-    with pytest.raises(UserError, match=r"^--path capture: the scene's capture record has no camera \(no 'intrinsics'\)"):
+    with pytest.raises(UserError, match=r"^--path capture: the scene's capture record has no camera "
+                                        r"\(no 'intrinsics'\)"):
         capture_camera({"capture": {}}, SceneOptions())
 
 
