@@ -2,8 +2,9 @@
 """Digital-twin benchmark: the Hamlyn stereo frame rebuilt as a scene, rendered with the defaults, and compared
 with the real pair by ``rgbd2scene realism`` (every figure as render / real, issue 15's goal bands).
 
-Usage: ``python benchmarks/bench_twin.py [--out MD] [--delight auto|on|off] [--delight-smooth PX] [--work DIR]``
-(``--delight*`` passed to the scene stage; default: the scene stage's defaults)
+Usage: ``python benchmarks/bench_twin.py [--out MD] [--delight auto|on|off] [--delight-smooth PX]
+[--smooth-iterations N] [--work DIR]`` (``--delight*`` and ``--smooth-iterations`` passed to the scene stage;
+default: the scene stage's defaults)
 
 Real frames: the Hamlyn silicone heart phantom (``../shared/rgbd_samples/hamlyn_silicone_heart_phantom_stereo``,
 one stereo frame, 360x288, calibrated). Measured pixels: the valid area (rows 8-287, columns 8-351: without the
@@ -71,11 +72,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--delight", choices=("auto", "on", "off"), default=None,
                     help="the scene stage's --delight (default: its default)")
     ap.add_argument("--delight-smooth", default=None, help="the scene stage's --delight-smooth (texels)")
+    ap.add_argument("--smooth-iterations", default=None,
+                    help="the scene stage's --smooth-iterations (ray smoothing of the stereo mesh)")
     ap.add_argument("--work", default=str(WORK), help=f"work folder, emptied first (default {WORK})")
     args = ap.parse_args(argv)
     work = Path(args.work)
     delight = ([] if args.delight is None else ["--delight", args.delight]) + (
-        [] if args.delight_smooth is None else ["--delight-smooth", args.delight_smooth])
+        [] if args.delight_smooth is None else ["--delight-smooth", args.delight_smooth]) + (
+        [] if args.smooth_iterations is None else ["--smooth-iterations", args.smooth_iterations])
     if not HAMLYN.is_dir():
         print(f"error: the real frames are absent: {HAMLYN}", file=sys.stderr)
         return 2

@@ -1,6 +1,6 @@
 """Stereo endoscope frames: calibration files, rectification, confident stereo depth, the Hamlyn phantom scene.
 
-Synthetic cases have exact answers (projected 3-D points, a textured slanted plane); the real Hamlyn
+Synthetic cases have exact answers (projected 3-D points, a textured slanted plane, a textured sphere); the real Hamlyn
 phantom frame (no ground truth) is held to plausibility at the calibrated scale, to exact geometry of
 the frames involved (the mesh in the unrectified left camera) and to a render through the capture camera.
 """
@@ -28,7 +28,9 @@ from rgbd2scene.capture.stereo import (
 )
 from rgbd2scene.conventions import invert_pose, pixel_grid, transform_points
 from rgbd2scene.geometry.stereo import DISTORTION_SIZES, StereoCalibration
+from rgbd2scene.reconstruct.mesh import grid_mesh
 from rgbd2scene.reconstruct.pipeline import reconstruct
+from rgbd2scene.reconstruct.smooth import boundary_vertices, smooth_mesh
 
 HAMLYN = "hamlyn_silicone_heart_phantom_stereo"
 LEFT, RIGHT = "f7_dynamic_deint_L_0100.png", "f7_dynamic_deint_R_0100.png"
@@ -332,6 +334,65 @@ def test_stereo_depth_of_a_textured_slanted_plane(matcher):
     cut = stereo_depth(pair, f, baseline, StereoOptions(matcher=matcher, min_depth=0.02, max_depth=0.2))
     u = pixel_grid(*truth.shape)[0]
     assert not np.isfinite(cut.disparity)[u - truth > 119].any()
+
+
+def _sphere_pair(width: int = 425, height: int = 340, f: float = 425.0, baseline: float = 0.0055):
+    """A textured sphere of 3 cm radius, its apex 58 mm before the left eye (the Hamlyn phantom's scale), as a
+    rectified pair; returns the pair, the true depth, the true unit normals and the pixels on the sphere."""
+    radius, apex = 0.03, 0.058
+    u, v = pixel_grid(height, width)
+    x, y = (u - width / 2) / f, (v - height / 2) / f
+    centre, q = apex + radius, x**2 + y**2 + 1
+    disc = centre**2 - q * (centre**2 - radius**2)
+    on_sphere = disc > 0
+    # the near intersection of each pixel's ray (x, y, 1) t with the sphere; beside it a curved backdrop
+    z = np.where(on_sphere, (centre - np.sqrt(np.where(on_sphere, disc, 0))) / q, centre / q)
+    rng = np.random.default_rng(0)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (height, width)).astype(np.float32), (0, 0), 1.2)
+    texture = cv2.normalize(texture, None, 10, 245, cv2.NORM_MINMAX)
+    disparity = f * baseline / z
+    columns = np.arange(width, dtype=np.float64)
+    # right pixel x sees the left pixel s with s - d(s) = x (s - d(s) rises along each row)
+    src = np.stack([np.interp(columns, columns - row, columns) for row in disparity])
+    right = cv2.remap(texture, src.astype(np.float32), v.astype(np.float32), cv2.INTER_CUBIC)
+    rgb = [np.repeat(np.clip(im, 0, 255).astype(np.uint8)[..., None], 3, axis=2) for im in (texture, right)]
+    points = np.dstack([x * z, y * z, z])
+    normals = np.cross(np.gradient(points, axis=1), np.gradient(points, axis=0))
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    mask = np.ones((height, width), bool)
+    return RectifiedPair(rgb[0], rgb[1], mask, mask.copy()), z, normals, on_sphere
+
+
+def test_the_stereo_smoothing_default_brings_a_curved_surface_closer_than_30_iterations():
+    """The default's reason (``STEREO_SMOOTH_ITERATIONS``): stereo depth noise is correlated over the matching
+    window, and more iterations than 30 bring both the normals and the depth of a curved surface closer."""
+    pair, z, normals, on_sphere = _sphere_pair()
+    f, height, width = 425.0, *z.shape
+    result = stereo_depth(pair, f, 0.0055, StereoOptions(matcher="sgbm"))
+    K = np.array([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]])
+    mesh, _ = grid_mesh(result.depth, K, pair.left)
+    pu, pv = (np.round(f * mesh.vertices[:, i] / mesh.vertices[:, 2] + c).astype(int)
+              for i, c in ((0, width / 2), (1, height / 2)))
+    # judged on the sphere, seen less obliquely than 60 degrees, 6 px or more from the mesh's rims
+    u, v = pixel_grid(height, width)
+    rays = np.dstack([u - width / 2, v - height / 2, np.full(z.shape, f)])
+    facing = np.abs(np.einsum("ijk,ijk->ij", normals, rays / np.linalg.norm(rays, axis=2, keepdims=True))) > 0.5
+    rim = np.zeros(z.shape, bool)
+    edge = boundary_vertices(mesh.triangles, mesh.n_vertices)
+    rim[pv[edge], pu[edge]] = True
+    judged = ((ndimage.distance_transform_edt(~rim) >= 6) & on_sphere & facing)[pv, pu]
+    assert judged.sum() > 20000
+
+    def errors(iterations: int) -> tuple[float, float]:
+        smoothed, _ = smooth_mesh(mesh, "ray", iterations=iterations)
+        depth_um = np.median(np.abs(smoothed.vertices[:, 2] - z[pv, pu])[judged]) * 1e6
+        cos = np.abs(np.einsum("ij,ij->i", smoothed.vertex_normals("angle"), normals[pv, pu]))[judged]
+        return depth_um, float(np.median(np.degrees(np.arccos(np.clip(cos, 0, 1)))))
+
+    (depth_30, normal_30), (depth_default, normal_default) = errors(30), errors(STEREO_SMOOTH_ITERATIONS)
+    print(f"30 iterations: depth {depth_30:.0f} um, normals {normal_30:.2f} deg; default "
+          f"({STEREO_SMOOTH_ITERATIONS}): depth {depth_default:.0f} um, normals {normal_default:.2f} deg")
+    assert normal_default < 0.7 * normal_30 and depth_default < depth_30
 
 
 # --------------------------------------------------------------------------------------------- Hamlyn phantom

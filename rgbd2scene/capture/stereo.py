@@ -62,12 +62,17 @@ OPENCV_SIZE_KEYS = ("image_width", "image_height")
 OPENCV_SUFFIXES = (".yaml", ".yml", ".xml")
 MATCHERS = ("auto", "sgbm", "elas")
 #: Ray-smoothing iterations for a stereo frame's mesh (10 for RGB-D). Stereo depth is rough at the pixel
-#: scale (sub-pixel disparity noise of 0.07-0.14 px is about one pixel footprint in depth): on a synthetic
-#: curved surface 30 iterations cut the median normal error from 7.9 to 6.0 degrees (SGBM; ELAS 17 to 13)
-#: and the depth error from 95 to 82 um; on the Hamlyn phantom seen at 3 cm, 10 iterations left 0.5 % of
-#: the pixels failing ``verify``'s left-right check (the other eye sees further), 30 none. Finer relief,
-#: a few pixels across, is flattened more.
-STEREO_SMOOTH_ITERATIONS = 30
+#: scale (sub-pixel disparity noise of 0.07-0.14 px is about one pixel footprint in depth), and the noise is
+#: correlated over the matching window, a few pixels: 30 iterations left lumps 3-8 px across that the render
+#: shades as glints the real Hamlyn phantom does not show (the digital twin's gradient mean 1.41 times the real
+#: frame's; 1.16 at 100; ``benchmarks/results/twin.md``). On a textured sphere of 3 cm radius 6 cm away
+#: (``tests/test_stereo.py``, the surface seen less obliquely than 60 degrees), 30 -> 100 iterations cut the
+#: median normal error from 5.6 to 2.8 degrees with SGBM (ELAS 7.8 to 3.0) and the median depth error from 86
+#: to 64 um (ELAS 134 to 109); 150 raises the depth error again. On the Hamlyn phantom 10 iterations left
+#: 0.5 % of the pixels failing ``verify``'s left-right check, 30 none; at 100 the mesh lies 0.24 mm (median;
+#: 95th percentile 0.83 mm) from the unsmoothed stereo depth, against 0.15 / 0.50 mm at 30. Relief a few
+#: pixels across is flattened with the noise.
+STEREO_SMOOTH_ITERATIONS = 100
 
 
 # ---------------------------------------------------------------------------------------------- calibration

@@ -46,7 +46,7 @@ class MeshOptions:
                                     flag="--max-grazing")
     smooth: str | None = option(None, "smoothing: ray (keeps texture registered), taubin, corrective, none "
                                 "(default ray; none when fusing frames)", choices=SMOOTH_METHODS)
-    smooth_iterations: int | None = option(None, "smoothing strength (default 10; 30 for a stereo frame, whose "
+    smooth_iterations: int | None = option(None, "smoothing strength (default 10; 100 for a stereo frame, whose "
                                            "depth is rougher)")
     highlights: str = option("remove", "specular highlights of the capture image: remove them from the texture "
                              "(filled from the surrounding colour; the image as captured is kept as "
