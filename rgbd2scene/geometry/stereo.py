@@ -215,8 +215,8 @@ class StereoCalibration:
 
 
 def _rotation_error(R: np.ndarray) -> float:
-    """How far R is from a rotation: max |R^T R - I| (its orthogonality; a scaled R counts as its scale, as
-    before session 11), infinite for a reflection (det R <= 0)."""
+    """How far R is from a rotation: max |R^T R - I| (a scaled R = s I counts s^2 - 1), infinite for a
+    reflection (det R <= 0)."""
     return float(np.abs(R.T @ R - np.eye(3)).max()) if np.linalg.det(R) > 0 else math.inf
 
 
