@@ -1016,14 +1016,21 @@ def test_base_fills_in_a_shared_pool_are_those_of_their_own_threads_to_the_bit()
         assert np.isfinite(shared[name][jobs[name][0]]).all()
 
 
-def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_ones_take():
+def _noisy_surface_with_one_wide_hole():
+    """A smooth surface with 1 % sensor noise, six narrow holes and one wide one (at row 60, column 80): the
+    depth with the holes, their labels and count, and their traits (only the wide one wide)."""
     noisy = smooth_surface() * (1 + 0.01 * np.random.default_rng(1).standard_normal((H, W))).astype(np.float32)
     holes = blobs(5, n=6, r=4) | disc(60, 80, 12)
     labels, n = components(holes)
     wide = np.zeros(n + 1, bool)
     wide[labels[60, 80]] = True
     traits = HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool))
-    choice = choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), None, labels, traits)
+    return np.where(holes, np.nan, noisy).astype(np.float32), labels, n, traits
+
+
+def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_ones_take():
+    depth, labels, n, traits = _noisy_surface_with_one_wide_hole()
+    choice = choose_per_hole(depth, None, labels, traits)
     assert NAMES[choice[labels[60, 80]]] == "biharmonic"
     assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise
 
@@ -1040,15 +1047,10 @@ def test_copies_are_laid_only_of_the_holes_whose_fill_they_choose(monkeypatch):
         return hole_copies(labels, *args, **kwargs)
 
     monkeypatch.setattr(policy, "hole_copies", spy)
-    noisy = smooth_surface() * (1 + 0.01 * np.random.default_rng(1).standard_normal((H, W))).astype(np.float32)
-    holes = blobs(5, n=6, r=4) | disc(60, 80, 12)
-    labels, n = components(holes)
-    wide = np.zeros(n + 1, bool)
-    wide[labels[60, 80]] = True
-    traits = HoleTraits(np.zeros(n + 1, bool), wide, np.zeros(n + 1, bool))
+    depth, labels, n, traits = _noisy_surface_with_one_wide_hole()
     for rgb in (None, np.full((H, W, 3), 128, np.uint8)):
         copied.clear()
-        choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), rgb, labels, traits)
+        choose_per_hole(depth, rgb, labels, traits)
         assert copied and all(c == set(range(1, n + 1)) - {labels[60, 80]} for c in copied)
 
 
