@@ -77,9 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", default=str(WORK), help=f"work folder, emptied first (default {WORK})")
     args = ap.parse_args(argv)
     work = Path(args.work)
-    delight = ([] if args.delight is None else ["--delight", args.delight]) + (
-        [] if args.delight_smooth is None else ["--delight-smooth", args.delight_smooth]) + (
-        [] if args.smooth_iterations is None else ["--smooth-iterations", args.smooth_iterations])
+    scene_args = [arg for flag, value in (("--delight", args.delight), ("--delight-smooth", args.delight_smooth),
+                                          ("--smooth-iterations", args.smooth_iterations))
+                  if value is not None for arg in (flag, value)]
     if not HAMLYN.is_dir():
         print(f"error: the real frames are absent: {HAMLYN}", file=sys.stderr)
         return 2
@@ -89,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(work)
     work.mkdir(parents=True)
     versions = software_versions()
-    print(f"settings: --path capture, frame 0, scene {' '.join(delight) or 'defaults'}, "
+    print(f"settings: --path capture, frame 0, scene {' '.join(scene_args) or 'defaults'}, "
           f"size {SIZE[0]}x{SIZE[1]}, render defaults, "
           f"python {versions['python']}, bpy {versions['bpy']}, "
           f"machine {platform.machine()}", flush=True)
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     scene, dataset, out = work / "scene", work / "dataset", work / "realism"
     t = time.perf_counter()
     _cli("scene", "--left", str(LEFT), "--right", str(RIGHT), "--stereo-calib", str(HAMLYN), "--path", "capture",
-         "--no-overview", *delight, "-o", str(scene))
+         "--no-overview", *scene_args, "-o", str(scene))
     t_scene = time.perf_counter() - t
     t = time.perf_counter()
     _cli("render", str(scene), "-o", str(dataset), "--frames", "1", "--quiet", "--no-sheet")
