@@ -22,7 +22,7 @@ from rgbd2scene.dataset.layout import EYES, frame_paths, write_dataset_json, wri
 from rgbd2scene.geometry.camera import Camera, Intrinsics
 from rgbd2scene.geometry.stereo import StereoCalibration
 from rgbd2scene.groundtruth.synthetic import PlaneScene, plane_texture
-from rgbd2scene.scene.rig import StereoRig, rectification
+from rgbd2scene.scene.rig import StereoRig
 
 cv2 = pytest.importorskip("cv2")
 W, H, FRAMES = 160, 120, 2
@@ -76,7 +76,7 @@ def raw(tmp_path_factory):
 def _rectified_disparity(index: int) -> np.ndarray:
     """The plane's left disparity in the rectified grid, in closed form: f_r B / z of each rectified pixel's ray."""
     rig = _rig()
-    rect = rectification(rig.calibration)
+    rect = rig.calibration.rectification()
     P1 = np.asarray(rect.P1)
     u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     rays_rect = np.stack([(u - P1[0, 2]) / P1[0, 0], (v - P1[1, 2]) / P1[1, 1], np.ones_like(u)], axis=-1)

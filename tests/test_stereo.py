@@ -244,17 +244,17 @@ def test_a_scope_rig_and_its_calibration_have_one_rectified_pair():
     """The rig's rectified pair (CONVENTIONS 1.2: ``render --rectify``, calibration.yaml, evaluation) is the
     capture's at alpha 0 and the rig's size, exactly; an already rectified rig is its own (R = I, P = [K | t]),
     which is what ``cv2.stereoRectify`` gives it too, up to rounding."""
-    from rgbd2scene.scene.rig import StereoRig, read_scope_calibration, rectification
+    from rgbd2scene.scene.rig import StereoRig, read_scope_calibration
 
     rig = read_scope_calibration(Path(__file__).parents[1] / "data_samples" / "scope" / "calibration.yaml")
     calib = rig.calibration
-    ours, theirs = rectification(calib), rectify(calib, alpha=0.0, keep_resolution=False)
+    ours, theirs = calib.rectification(), rectify(calib, alpha=0.0, keep_resolution=False)
     assert not np.allclose(ours.R1, np.eye(3)) and (ours.width, ours.height) == (theirs.width, theirs.height)
     for name in ("R1", "R2", "P1", "P2", "Q"):
         assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
 
     rectified = StereoRig.endoscope(64, 32, 60.0, 0.004)
-    own = rectification(rectified.calibration)
+    own = rectified.calibration.rectification()
     opencv = cv2.stereoRectify(rectified.left.K, np.zeros(5), rectified.left.K, np.zeros(5), (64, 32),
                                np.eye(3), np.array([-0.004, 0.0, 0.0]), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
     assert np.array_equal(own.R1, np.eye(3)) and np.array_equal(own.P1[:, :3], rectified.left.K)

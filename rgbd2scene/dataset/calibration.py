@@ -13,7 +13,6 @@ import numpy as np
 
 from rgbd2scene.files.atomic import atomic_path
 from rgbd2scene.geometry.stereo import StereoCalibration
-from rgbd2scene.scene.rig import rectification
 
 CALIBRATION_YAML = "calibration.yaml"
 
@@ -37,7 +36,7 @@ def write_calibration(root: str | Path, calibration: StereoCalibration) -> Path:
             fs.write("T", np.asarray(calibration.T, dtype=np.float64).reshape(3, 1))
             fs.write("rectified", int(calibration.rectified))
             if calibration.rectified:
-                rect = rectification(calibration)
+                rect = calibration.rectification()
                 for name in ("R1", "R2", "P1", "P2", "Q"):
                     fs.write(name, np.asarray(getattr(rect, name), dtype=np.float64))
         finally:

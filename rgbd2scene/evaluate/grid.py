@@ -5,12 +5,12 @@ A rectified dataset is matched as written: its disparity ``d`` is scored as dept
 A raw dataset (CONVENTIONS 1.2: the scope's distortion and unequal eyes, every map in the distorted pixel grid)
 cannot be matched as written: stereo methods search along image rows, which a raw pair's epipolar lines are
 not. It is rectified first, as ``render --rectify`` and ``calibration.yaml`` define the rectified pair
-(``cv2.stereoRectify``, alpha 0: :func:`~rgbd2scene.scene.rig.rectification`), and each method's disparity,
-found in that grid, is scored at the raw left pixels, where the ground truth is exact: a raw pixel's own ray
-(:meth:`~rgbd2scene.geometry.camera.Camera.rays`) lands at a point of the rectified image, where the prediction
-is read (nearest pixel: no blend across depth edges; at most half a rectified pixel away); the depth it gives
-along the rectified camera's axis, ``f_r·B/d``, is turned into the planar depth of the raw camera along the
-same ray. The ground truth is never resampled.
+(``cv2.stereoRectify``, alpha 0: :meth:`~rgbd2scene.geometry.stereo.StereoCalibration.rectification`), and each
+method's disparity, found in that grid, is scored at the raw left pixels, where the ground truth is exact: a raw
+pixel's own ray (:meth:`~rgbd2scene.geometry.camera.Camera.rays`) lands at a point of the rectified image, where
+the prediction is read (nearest pixel: no blend across depth edges; at most half a rectified pixel away); the
+depth it gives along the rectified camera's axis, ``f_r·B/d``, is turned into the planar depth of the raw camera
+along the same ray. The ground truth is never resampled.
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgbd2scene.dataset.reader import Dataset
-from rgbd2scene.scene.rig import rectification
 
 
 @dataclass(frozen=True)
@@ -50,7 +49,7 @@ class MatchingGrid:
         if dataset.rectified:
             return cls(dataset.fx, dataset.baseline, dataset.fx)
         rig = dataset.rig
-        rect = rectification(rig.calibration)
+        rect = rig.calibration.rectification()
         rectify = {eye: rect.maps(eye, rig.camera(eye).K, rig.camera(eye).distortion) for eye in ("left", "right")}
         P1 = np.asarray(rect.P1, dtype=np.float64)
         f = float(P1[0, 0])

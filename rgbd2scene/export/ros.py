@@ -60,7 +60,7 @@ from rgbd2scene.dataset.reader import Dataset
 from rgbd2scene.errors import UserError
 from rgbd2scene.export.common import ExportSummary, complete_frames, frame_indices
 from rgbd2scene.files.atomic import atomic_place
-from rgbd2scene.scene.rig import StereoRig, rectification
+from rgbd2scene.scene.rig import StereoRig
 
 #: 2024-01-01T00:00:00Z: the default first stamp (a fixed epoch: reproducible bags; not 0, which tf reads as
 #: "latest available")
@@ -134,7 +134,7 @@ def camera_info_matrices(rig: StereoRig, eye: str) -> dict[str, np.ndarray]:
     """D, K, R, P of one eye: for the rectified pair D = 0, R = I, P = [K | 0] (P[0,3] = -fx·B on the right);
     for a raw pair the eye's own D and K, and R, P of its rectification (``cv2.stereoRectify``, alpha 0), as
     ROS's stereo_image_proc expects them."""
-    rect = rectification(rig.calibration)
+    rect = rig.calibration.rectification()
     R, P = rect.eye(eye)
     camera = rig.camera(eye)
     return {"d": camera.distortion, "k": camera.K.ravel(), "r": np.asarray(R, np.float64).ravel(),

@@ -19,6 +19,7 @@ import numpy as np
 
 from rgbd2scene.errors import UserError
 from rgbd2scene.geometry.camera import DISTORTION_LENGTHS, Camera, Intrinsics, warn
+from rgbd2scene.geometry.rectification import Rectification, stereo_rectification
 
 #: Numbers of distortion coefficients a calibration may give (OpenCV's models; an ideal lens is 5 zeros).
 DISTORTION_SIZES = tuple(n for n in DISTORTION_LENGTHS if n)
@@ -172,6 +173,15 @@ class StereoCalibration:
         out[:3, :3] = R.T
         out[:3, 3] = -R.T @ T
         return out
+
+    def rectification(self) -> Rectification:
+        """The rectified pair as ``cv2.stereoRectify(alpha=0)`` defines it at this image size (CONVENTIONS 1.2,
+        section 2; :func:`~rgbd2scene.geometry.rectification.stereo_rectification`). A rectified pair is its own
+        rectification: R1 = R2 = I, P1 = [K | 0], P2 = [K | (-fx B, 0, 0)]
+        (:meth:`~rgbd2scene.geometry.rectification.Rectification.identity`)."""
+        if self.rectified:
+            return Rectification.identity(self.K_left, self.baseline, *self.size)
+        return stereo_rectification(self.K_left, self.D_left, self.K_right, self.D_right, self.size, self.R, self.T)
 
     def resized(self, width: int, height: int) -> StereoCalibration:
         """Both eyes sampled at ``width`` x ``height``."""

@@ -18,7 +18,7 @@ import numpy as np
 
 from rgbd2scene.geometry.camera import Intrinsics
 from rgbd2scene.geometry.rectification import Rectification
-from rgbd2scene.scene.rig import StereoRig, rectification
+from rgbd2scene.scene.rig import StereoRig
 
 #: Border (pixels of the rectified render) kept around the raw rays, for the bilinear lookup.
 BORDER_PX = 2
@@ -61,7 +61,7 @@ def raw_render_plan(rig: StereoRig, supersample: float = 1.0) -> RawRender:
     Its focal length is ``supersample`` times the largest of the eyes' focal lengths (square pixels); its
     image is the smallest that holds every ray's projection plus :data:`BORDER_PX`.
     """
-    rect = rectification(rig.calibration)
+    rect = rig.calibration.rectification()
     R_rect = {"left": np.asarray(rect.R1, dtype=np.float64), "right": np.asarray(rect.R2, dtype=np.float64)}
     f = float(supersample) * max(rig.left.K[0, 0], rig.left.K[1, 1], rig.right.K[0, 0], rig.right.K[1, 1])
     normalised, has_ray = {}, {}
@@ -91,6 +91,6 @@ def rectified_rig(rig: StereoRig) -> tuple[StereoRig, Rectification]:
     """The rectified pair of a raw rig (``render --rectify``): both eyes ``P1[:3, :3]``, no distortion, the
     baseline |T| along x; and the rig's rectification (R1 turns the raw left eye's frame into the rectified
     one: ``T_left_rectified``)."""
-    rect = rectification(rig.calibration)
+    rect = rig.calibration.rectification()
     camera = Intrinsics.from_K(rect.K, rig.left.width, rig.left.height)
     return StereoRig.parallel(camera, rig.baseline, rig.clip_start, rig.clip_end), rect

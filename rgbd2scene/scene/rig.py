@@ -13,7 +13,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rgbd2scene.geometry.camera import Camera, Intrinsics
-from rgbd2scene.geometry.rectification import Rectification, stereo_rectification
 from rgbd2scene.geometry.stereo import StereoCalibration
 
 #: da Vinci-class stereo endoscope: 5 mm baseline; 512x256 as in the VisionBlender dataset.
@@ -96,19 +95,6 @@ class StereoRig:
         else:
             calibration = StereoCalibration.parallel(left, float(d["baseline"]))
         return cls(calibration, float(d["clip_start"]), float(d["clip_end"]))
-
-
-def rectification(calibration: StereoCalibration) -> Rectification:
-    """The rectified pair of ``calibration`` as ``cv2.stereoRectify(alpha=0)`` defines it at its image size
-    (CONVENTIONS 1.2, section 2; :func:`~rgbd2scene.geometry.rectification.stereo_rectification`).
-
-    A rectified pair is its own rectification: R1 = R2 = I, P1 = [K | 0], P2 = [K | (-fx B, 0, 0)]
-    (:meth:`~rgbd2scene.geometry.rectification.Rectification.identity`).
-    """
-    if calibration.rectified:
-        return Rectification.identity(calibration.K_left, calibration.baseline, *calibration.size)
-    return stereo_rectification(calibration.K_left, calibration.D_left, calibration.K_right, calibration.D_right,
-                                calibration.size, calibration.R, calibration.T)
 
 
 def read_scope_calibration(path, size: tuple[int, int] | None = None) -> StereoRig:
