@@ -156,15 +156,15 @@ def capture_camera(record: dict, options: SceneOptions) -> tuple[StereoRig, np.n
     """
     capture = record.get("capture") or {}
     stereo = capture.get("stereo")
-    no_camera = ("--path capture: the scene's capture record has no camera ({}); give a capture (--rgb/--depth or "
-                 "--left/--right/--stereo-calib) or a mesh folder made from one")
     try:
         if stereo is not None:
             calibration = StereoCalibration.from_dict(stereo["calibration_values"], source="the capture record")
             return StereoRig(calibration), np.eye(4)
         intrinsics = Intrinsics.from_dict(capture["intrinsics"])
     except (KeyError, TypeError) as exc:
-        raise UserError(no_camera.format(f"no {exc}" if isinstance(exc, KeyError) else exc)) from None
+        missing = f"no {exc}" if isinstance(exc, KeyError) else exc
+        raise UserError(f"--path capture: the scene's capture record has no camera ({missing}); give a capture "
+                        "(--rgb/--depth or --left/--right/--stereo-calib) or a mesh folder made from one") from None
     except ValueError as exc:
         what = "stereo calibration" if stereo is not None else "intrinsics"
         raise UserError(f"--path capture: the {what} in the scene's capture record: {exc}") from None
