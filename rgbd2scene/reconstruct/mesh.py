@@ -81,59 +81,67 @@ def grid_mesh(
     with np.errstate(invalid="ignore"):
         valid = np.isfinite(z) & (z > 0)
     pts = backproject(np.where(valid, z, np.nan), K).reshape(-1, 3)
-    zf = pts[:, 2]
+    # One flat array per coordinate and per triangle corner rather than (N, 3) arrays: reductions and products
+    # over a length-3 axis are several times slower in numpy, and the first touch of large temporaries is
+    # much of this function's time in a fresh process. Every value is computed by the same operations as
+    # np.cross and a min/max over the corners, so the kept triangles are the same.
+    xf, yf, zf = pts[:, 0], pts[:, 1], pts[:, 2]
 
-    idx = np.arange(h * w, dtype=np.int64).reshape(h, w)
+    # int32 pixel numbers (a depth map has far fewer than 2**31 pixels) halve the memory of the candidates.
+    idx = np.arange(h * w, dtype=np.int32).reshape(h, w)
     a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
     c, d = idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
     vf = valid.ravel()
     va, vb, vc, vd = vf[a], vf[b], vf[c], vf[d]
     n_quads = a.size
 
-    tri_parts = [
-        np.stack([a, c, b], axis=1)[va & vb & vc],
-        np.stack([b, c, d], axis=1)[vb & vc & vd],
-    ]
+    corner_parts = [((a, c, b), va & vb & vc), ((b, c, d), vb & vc & vd)]
     n_alt = 0
     if alternate_diagonal:
         no_b = va & ~vb & vc & vd  # (a, c, d)
         no_c = va & vb & ~vc & vd  # (a, d, b)
-        tri_parts += [np.stack([a, c, d], axis=1)[no_b], np.stack([a, d, b], axis=1)[no_c]]
-        n_alt = int(no_b.sum() + no_c.sum())
-    tris = np.concatenate(tri_parts, axis=0)
-    n_candidates = len(tris)
+        corner_parts += [((a, c, d), no_b), ((a, d, b), no_c)]
+        n_alt = int(np.count_nonzero(no_b) + np.count_nonzero(no_c))
+    # Each corner of every candidate triangle, in the order of the parts, then of the quads.
+    i0, i1, i2 = (np.concatenate([corners[k][mask] for corners, mask in corner_parts]) for k in range(3))
+    n_candidates = len(i0)
 
     # Relative depth jump over the triangle.
-    tz = zf[tris]
-    zmin, zmax = tz.min(axis=1), tz.max(axis=1)
+    z0, z1, z2 = zf[i0], zf[i1], zf[i2]
+    zmin = np.minimum(np.minimum(z0, z1), z2)
     if max_relative_jump is None or not math.isfinite(max_relative_jump):
-        jump = np.zeros(len(tris), dtype=bool)
+        jump = np.zeros(n_candidates, dtype=bool)
     else:
+        zmax = np.maximum(np.maximum(z0, z1), z2)
         jump = (zmax - zmin) > max_relative_jump * zmin
-    # Grazing angle between the face normal and the ray through the centroid (camera at the origin).
-    p0, p1, p2 = pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]]
-    normal = np.cross(p1 - p0, p2 - p0)
-    ray = p0 + p1 + p2
     if max_grazing_deg is None or max_grazing_deg >= 90.0:
-        grazing = np.zeros(len(tris), dtype=bool)
+        grazing = np.zeros(n_candidates, dtype=bool)
     else:
+        # Grazing angle between the face normal and the ray through the centroid (camera at the origin):
         # cos(angle) = -n.r / (|n||r|); grazing when cos < cos(max); compare squares to skip sqrt.
+        x0, x1, x2 = xf[i0], xf[i1], xf[i2]
+        y0, y1, y2 = yf[i0], yf[i1], yf[i2]
+        ex1, ey1, ez1 = x1 - x0, y1 - y0, z1 - z0
+        ex2, ey2, ez2 = x2 - x0, y2 - y0, z2 - z0
+        normal = np.stack([ey1 * ez2 - ez1 * ey2, ez1 * ex2 - ex1 * ez2, ex1 * ey2 - ey1 * ex2], axis=1)
+        ray = np.stack([x0 + x1 + x2, y0 + y1 + y2, z0 + z1 + z2], axis=1)
+        # einsum's sums of three products are not bit-equal to the written-out sums: kept on (N, 3) arrays
         dot = -np.einsum("ij,ij->i", normal, ray)
         cmax = math.cos(math.radians(max_grazing_deg))
         nn = np.einsum("ij,ij->i", normal, normal) * np.einsum("ij,ij->i", ray, ray)
         grazing = (dot <= 0) | (dot * dot < (cmax * cmax) * nn)
     keep = ~jump & ~grazing
-    n_jump = int(jump.sum())
-    n_grazing = int((grazing & ~jump).sum())
-    tris = tris[keep]
+    n_jump = int(np.count_nonzero(jump))
+    n_grazing = int(np.count_nonzero(grazing & ~jump))
+    tris = np.stack([i0[keep], i1[keep], i2[keep]], axis=1)
 
     # Reindex: keep only the referenced vertices, in pixel order.
     used = np.zeros(h * w, dtype=bool)
     used[tris.ravel()] = True
     pixels = np.flatnonzero(used)
-    remap = np.full(h * w, -1, dtype=np.int64)
-    remap[pixels] = np.arange(len(pixels))
-    triangles = remap[tris].astype(np.int32)
+    remap = np.full(h * w, -1, dtype=np.int32)
+    remap[pixels] = np.arange(len(pixels), dtype=np.int32)
+    triangles = remap[tris]
 
     rows, cols = np.divmod(pixels, w)
     uvs = np.stack([(cols + 0.5) / w, 1.0 - (rows + 0.5) / h], axis=1).astype(np.float32)
