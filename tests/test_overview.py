@@ -109,6 +109,26 @@ def test_render_mesh_image_shows_shape():
     assert np.abs(img.astype(int) - img2).max() <= 1
 
 
+def test_render_mesh_image_z_buffer_nearest_splat_then_first():
+    """Two surfaces over the same pixels: the nearer one is drawn; at equal depth the one listed first."""
+    depth = np.full((H, W), 0.08, np.float32)
+    pts, tris, _ = grid_mesh(depth, np.zeros((H, W, 3), np.uint8))
+    near_pts, _, _ = grid_mesh(depth * 0.75, np.zeros((H, W, 3), np.uint8))
+    red, green, blue = (np.array([[255, 0, 0]] * len(pts), np.uint8), np.array([[0, 255, 0]] * len(pts), np.uint8),
+                        np.array([[0, 0, 255]] * len(pts), np.uint8))
+
+    def dominant(vertices, colours):
+        both_tris = np.concatenate([tris, tris + len(pts)])
+        img = render_mesh_image(np.concatenate(vertices), both_tris, np.concatenate(colours), K, W, H)
+        drawn = img[img.max(axis=2) > 60]
+        assert len(drawn) > 0.3 * H * W
+        return np.bincount(drawn.argmax(axis=1), minlength=3)
+
+    assert dominant([pts, near_pts], [red, green]).argmax() == 1  # the nearer (green), though listed second
+    counts = dominant([pts, pts], [red, blue])  # the same surface twice: the first listed (red) everywhere
+    assert counts[0] > 0 and counts[1] == counts[2] == 0
+
+
 def test_render_mesh_image_empty_mesh_is_background():
     img = render_mesh_image(np.zeros((0, 3)), np.zeros((0, 3), int), None, K, W, H)
     assert img.shape == (H, W, 3)

@@ -340,13 +340,14 @@ def render_mesh_image(
             depths.append(cam[index[inside], 2])
             sources.append(index[inside])
     pixel, source, depth = np.concatenate(pixels), np.concatenate(sources), np.concatenate(depths)
-    # z-buffer: per pixel the splat of least depth rank (ties: the first splat), a third of a lexsort's time
-    order = np.argsort(depth, kind="stable")
-    rank = np.empty(len(order), np.int64)
-    rank[order] = np.arange(len(order))
-    nearest = np.full(height * width, len(order), np.int64)
-    np.minimum.at(nearest, pixel, rank)
-    hit = np.flatnonzero(nearest < len(order))
+    # z-buffer: per pixel the splat of least depth, ties to the first splat: the least depth per pixel, then the
+    # first splat at that depth (two unbuffered minimums, a tenth of the time of a stable sort of the depths)
+    nearest_depth = np.full(height * width, np.inf)
+    np.minimum.at(nearest_depth, pixel, depth)
+    front = np.flatnonzero(depth == nearest_depth[pixel])
+    first = np.full(height * width, len(depth), np.int64)
+    np.minimum.at(first, pixel[front], front)
+    hit = np.flatnonzero(first < len(depth))
     out = bg.reshape(-1, 3).copy()
-    out[hit] = shaded[source[order[nearest[hit]]]]
+    out[hit] = shaded[source[first[hit]]]
     return out.reshape(height, width, 3)
