@@ -100,21 +100,27 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray, weighting: str =
     """
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(triangles, dtype=np.int64)
-    corners = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-    cross = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    # Contiguous corner numbers and weights, one array per component: bincount copies a strided view at each
+    # of its nine calls, and np.cross copies both inputs; the cross product is written out with np.cross's
+    # own operations, so the normals are the same.
+    corner_ids = [np.ascontiguousarray(t[:, k]) for k in range(3)]
+    corners = [v[ids] for ids in corner_ids]
+    (x1, y1, z1), (x2, y2, z2) = (corners[1] - corners[0]).T, (corners[2] - corners[0]).T
+    cross = (y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2)
     if weighting == "area":
         weighted = [cross] * 3
     elif weighting == "angle":
-        unit = _normalise(cross)
+        unit = _normalise(np.stack(cross, axis=1))
         weighted = []
         for k in range(3):
             e1 = _normalise(corners[(k + 1) % 3] - corners[k])
             e2 = _normalise(corners[(k + 2) % 3] - corners[k])
-            weighted.append(unit * np.arccos(np.clip(np.sum(e1 * e2, axis=1), -1.0, 1.0))[:, None])
+            angle = np.arccos(np.clip(np.sum(e1 * e2, axis=1), -1.0, 1.0))
+            weighted.append([unit[:, d] * angle for d in range(3)])
     else:
         raise ValueError(f"unknown normal weighting {weighting!r} (area or angle)")
     acc = np.zeros((len(v), 3))
     for k in range(3):
         for d in range(3):  # bincount: much faster than np.add.at
-            acc[:, d] += np.bincount(t[:, k], weights=weighted[k][:, d], minlength=len(v))
+            acc[:, d] += np.bincount(corner_ids[k], weights=weighted[k][d], minlength=len(v))
     return _normalise(acc)
