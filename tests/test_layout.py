@@ -113,9 +113,9 @@ def test_subpackages_import_each_other_without_a_cycle():
 
 
 def test_geometry_imports_only_the_conventions():
-    """The shared geometry (camera model, mesh, ray caster) sits below every stage: it may use the conventions
-    and the errors, nothing else of the package."""
-    assert set(_package_imports()["geometry"]) <= {"conventions", "errors"}
+    """The shared geometry (camera model, mesh, ray caster) sits below every stage: it may use the conventions,
+    the errors and the lazy package names (which import nothing of the package), nothing else."""
+    assert set(_package_imports()["geometry"]) <= {"conventions", "errors", "lazy"}
 
 
 def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
@@ -130,5 +130,25 @@ def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
             "    assert getattr(stages, name).__module__.startswith('rgbd2scene.'), name\n"
             "from rgbd2scene.stages import RenderOptions, build_scene_folder\n"
             "assert not hasattr(stages, 'no_such_name')\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_the_mesh_command_loads_no_scene_model_paths_or_dataset_and_package_names_resolve():
+    """``rgbd2scene mesh`` needs only ``scene.folder`` and the overview of the pictures: the scene model, the
+    camera paths, the contact sheet and the dataset reader are not imported at its start (nor compiled, where
+    no bytecode is cached); every name the scene, geometry and pictures packages list still resolves."""
+    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
+            "import rgbd2scene.pictures.overview\n"
+            "cli.build_parser('mesh')\n"
+            "loaded = sorted(m for m in sys.modules if m.startswith(('rgbd2scene.scene.', 'rgbd2scene.dataset',\n"
+            "                                                       'rgbd2scene.pictures.')))\n"
+            "assert loaded == ['rgbd2scene.pictures.overview', 'rgbd2scene.scene.folder'], loaded\n"
+            "import rgbd2scene.geometry, rgbd2scene.pictures, rgbd2scene.scene\n"
+            "for package in (rgbd2scene.geometry, rgbd2scene.pictures, rgbd2scene.scene):\n"
+            "    for name in package.__all__:\n"
+            "        assert getattr(package, name) is not None, name\n"
+            "    assert not hasattr(package, 'no_such_name')\n"
+            "from rgbd2scene.scene import SceneDescription, folder\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert result.returncode == 0, result.stderr[-2000:]

@@ -1,12 +1,14 @@
 """Geometry every stage shares: the camera model, the calibrated stereo pair and its rectified pair, the triangle
 mesh type and the ray caster over it (capture, reconstruction, scene, ground truth and files all import it; it
-imports none of them)."""
+imports none of them). The names below load their module on first use (:mod:`rgbd2scene.lazy`)."""
 
-from rgbd2scene.geometry.camera import Camera, Intrinsics
-from rgbd2scene.geometry.mesh import Mesh, vertex_normals
-from rgbd2scene.geometry.raycast import Raycaster, raycaster, triangles_in_view
-from rgbd2scene.geometry.rectification import Rectification, stereo_rectification
-from rgbd2scene.geometry.stereo import StereoCalibration
+from rgbd2scene.lazy import lazy_names
 
-__all__ = ["Camera", "Intrinsics", "Mesh", "Raycaster", "Rectification", "StereoCalibration", "raycaster",
-           "stereo_rectification", "triangles_in_view", "vertex_normals"]
+_SUBMODULE_OF = {
+    "Camera": "camera", "Intrinsics": "camera", "Mesh": "mesh", "vertex_normals": "mesh",
+    "Raycaster": "raycast", "raycaster": "raycast", "triangles_in_view": "raycast",
+    "Rectification": "rectification", "stereo_rectification": "rectification", "StereoCalibration": "stereo",
+}
+
+__all__ = sorted(_SUBMODULE_OF)
+__getattr__ = lazy_names(__name__, _SUBMODULE_OF)

@@ -1,7 +1,11 @@
-"""Pictures people look at: capture overview, dataset contact sheet, Open3D preview."""
+"""Pictures people look at: capture overview, dataset contact sheet, Open3D preview.
 
-from rgbd2scene.pictures.contact_sheet import write_frame_sheet
-from rgbd2scene.pictures.overview import write_overview
-from rgbd2scene.pictures.preview import preview
+The names below load their module on first use (:mod:`rgbd2scene.lazy`): the mesh stage draws the overview
+only."""
 
-__all__ = ["preview", "write_frame_sheet", "write_overview"]
+from rgbd2scene.lazy import lazy_names
+
+_SUBMODULE_OF = {"write_overview": "overview", "write_frame_sheet": "contact_sheet", "preview": "preview"}
+
+__all__ = sorted(_SUBMODULE_OF)
+__getattr__ = lazy_names(__name__, _SUBMODULE_OF)

@@ -1,18 +1,16 @@
-"""The renderer-independent scene model: stereo rig, camera path, light and objects (no ``bpy``)."""
+"""The renderer-independent scene model: stereo rig, camera path, light and objects (no ``bpy``).
 
-from rgbd2scene.scene.materials import TissueDetail
-from rgbd2scene.scene.model import MATERIALS, Light, SceneDescription, SceneObject
-from rgbd2scene.scene.paths import (
-    PATH_GENERATORS,
-    PATH_KINDS,
-    CameraPath,
-    Track,
-    load_path_file,
-    look_at,
-    make_path,
-    path_coverage,
-)
-from rgbd2scene.scene.rig import StereoRig
+The names below load their module on first use (:mod:`rgbd2scene.lazy`): the mesh stage needs only
+:mod:`rgbd2scene.scene.folder`."""
 
-__all__ = ["CameraPath", "Light", "MATERIALS", "PATH_GENERATORS", "PATH_KINDS", "SceneDescription", "SceneObject",
-           "StereoRig", "TissueDetail", "Track", "load_path_file", "look_at", "make_path", "path_coverage"]
+from rgbd2scene.lazy import lazy_names
+
+_SUBMODULE_OF = {
+    "TissueDetail": "materials", "MATERIALS": "model", "Light": "model", "SceneDescription": "model",
+    "SceneObject": "model", "PATH_GENERATORS": "paths", "PATH_KINDS": "paths", "CameraPath": "paths",
+    "Track": "paths", "load_path_file": "paths", "look_at": "paths", "make_path": "paths",
+    "path_coverage": "paths", "StereoRig": "rig",
+}
+
+__all__ = sorted(_SUBMODULE_OF)
+__getattr__ = lazy_names(__name__, _SUBMODULE_OF)

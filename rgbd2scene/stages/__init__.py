@@ -2,10 +2,11 @@
 Blender.
 
 The names below load their stage on first use: a command imports only its own stages (``rgbd2scene mesh``
-never needs the scene, render or Blender stages, whose imports cost about 0.2 s CPU at every start).
+never needs the scene, render or Blender stages, whose imports cost about 0.2 s CPU at every start;
+:mod:`rgbd2scene.lazy`).
 """
 
-from importlib import import_module
+from rgbd2scene.lazy import lazy_names
 
 _STAGE_OF = {
     "Task": "blender", "TaskResult": "blender", "run_task": "blender",
@@ -17,9 +18,4 @@ _STAGE_OF = {
 }
 
 __all__ = sorted(_STAGE_OF)
-
-
-def __getattr__(name: str):
-    if name not in _STAGE_OF:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f"{__name__}.{_STAGE_OF[name]}"), name)
+__getattr__ = lazy_names(__name__, _STAGE_OF)
