@@ -7,7 +7,7 @@ import open3d as o3d
 import pytest
 
 from rgbd2scene.errors import UserError
-from rgbd2scene.files.meshio import obj_text, read_ply, write_ply, write_textured_obj
+from rgbd2scene.files.meshio import _fixed, _write_digits, obj_text, read_ply, write_ply, write_textured_obj
 from rgbd2scene.geometry.mesh import Mesh
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
@@ -121,3 +121,24 @@ def test_obj_unwritable_folder(tmp_path, mesh):
     blocker.write_text("x")
     with pytest.raises(UserError):
         write_textured_obj(blocker / "sub", mesh)
+
+
+def test_digit_text_matches_python_formatting():
+    """The OBJ's number text, four digits per division: right-aligned digits with NULs (or zeros) in front, and
+    fixed-point numbers as Python's ``%.Nf`` writes them."""
+    values = np.array([0, 7, 10, 99, 1000, 9999, 10000, 123456789, 10**12 + 34])
+    for width in (1, 3, 4, 5, 9, 13):
+        fits = values[values < 10**width]
+        for zeros in (False, True):
+            out = np.empty((len(fits), width), np.uint8)
+            _write_digits(out, fits, leading_zeros=zeros)
+            for value, row in zip(fits, out, strict=True):
+                expected = f"{value:0{width}d}" if zeros else f"{value:{width}d}".replace(" ", "\0")
+                assert row.tobytes().decode() == expected, (value, width, zeros)
+    x = np.array([[0.0, -0.0, 1.5], [-12.345678912, 3e-9, -4e-9], [98765.4321, 0.1, -7.0]])
+    for decimals in (0, 3, 8):
+        rows = _fixed(x, decimals)
+        for value, cell in zip(x.ravel(), rows.reshape(-1, rows.shape[-1]), strict=True):
+            text = f"{abs(value):.{decimals}f}"
+            sign = "-" if value < 0 and float(text) != 0 else ""
+            assert cell.tobytes().replace(b"\0", b"").decode() == f" {sign}{text}", (value, decimals)

@@ -161,17 +161,35 @@ def read_ply(path: str | Path) -> Mesh:
 # --------------------------------------------------------------------------------------------- OBJ
 
 
+#: The digits of 0000-9999: row j holds every number's j-th digit (ASCII), for four digits per division by 10000
+_FOUR_DIGITS = (np.arange(10000) // np.array([[1000], [100], [10], [1]]) % 10 + 48).astype(np.uint8)
+
+
+def _write_digits(out: np.ndarray, values: np.ndarray, leading_zeros: bool) -> None:
+    """Write the ASCII digits of non-negative integers right-aligned into ``out`` (..., width) (digits above the
+    width are dropped). Leading zeros are written as ``0`` with ``leading_zeros``, else as NULs (removed when the
+    text is compacted; the units digit is always written). Four digits per integer division, looked up a digit
+    column at a time from contiguous arrays: a division and a byte column per digit were most of an OBJ's time."""
+    values = np.asarray(values, dtype=np.int64)
+    width = out.shape[-1]
+    rest = values
+    for end in range(width, 0, -4):
+        quotient = rest // 10000
+        four = rest - quotient * 10000
+        for j in range(max(0, end - 4), end):
+            out[..., j] = _FOUR_DIGITS[4 - (end - j)][four]
+        rest = quotient
+    if not leading_zeros:
+        for j in range(width - 1):
+            out[..., j] *= values >= 10 ** (width - 1 - j)
+
+
 def _digits(values: np.ndarray, width: int) -> np.ndarray:
     """ASCII digits of non-negative integers, right-aligned in ``width`` columns with NUL padding
     (NULs are removed when the text is compacted); the units digit is always written."""
     values = np.asarray(values, dtype=np.int64)
-    out = np.zeros(values.shape + (width,), dtype=np.uint8)
-    rest = values.copy()
-    for j in range(width - 1, -1, -1):
-        d = (rest % 10).astype(np.uint8)
-        show = (rest > 0) | (j == width - 1)
-        out[..., j] = np.where(show, d + 48, 0)
-        rest //= 10
+    out = np.empty(values.shape + (width,), dtype=np.uint8)
+    _write_digits(out, values, leading_zeros=False)
     return out
 
 
@@ -185,20 +203,16 @@ def _fixed(values: np.ndarray, decimals: int) -> np.ndarray:
     x = np.asarray(values, dtype=np.float64)
     q = np.rint(np.abs(x) * 10.0**decimals).astype(np.int64)
     scale = 10**decimals
-    ip, fp = np.divmod(q, scale)
+    ip = q // scale
     width = _n_digits(ip.max()) if ip.size else 1
-    neg = (x < 0) & (q != 0)
-    parts = [
-        np.full(x.shape + (1,), 32, dtype=np.uint8),
-        np.where(neg, 45, 0).astype(np.uint8)[..., None],
-        _digits(ip, width),
-    ]
+    text = np.empty(x.shape + (2 + width + (1 + decimals if decimals > 0 else 0),), dtype=np.uint8)
+    text[..., 0] = 32
+    text[..., 1] = np.where((x < 0) & (q != 0), 45, 0)
+    _write_digits(text[..., 2:2 + width], ip, leading_zeros=False)
     if decimals > 0:
-        parts.append(np.full(x.shape + (1,), 46, dtype=np.uint8))
-        frac = _digits(fp, decimals)
-        frac[frac == 0] = 48  # fractional digits keep their leading zeros
-        parts.append(frac)
-    return np.concatenate(parts, axis=-1)
+        text[..., 2 + width] = 46
+        _write_digits(text[..., 3 + width:], q - ip * scale, leading_zeros=True)  # fractional digits keep zeros
+    return text
 
 
 def _lines(prefix: bytes, cells: np.ndarray) -> bytes:
