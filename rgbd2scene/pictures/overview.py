@@ -292,7 +292,8 @@ def render_mesh_image(
     if len(v) == 0 or len(t) == 0:
         return bg
     good = np.isfinite(v).all(axis=1)
-    t = t[good[t].all(axis=1)]
+    if not good.all():  # (a mesh stage's mesh is finite: no (M, 3) gather and reduction for it)
+        t = t[good[t].all(axis=1)]
     if len(t) == 0:
         return bg
     v = np.nan_to_num(v)
