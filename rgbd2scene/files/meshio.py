@@ -251,15 +251,16 @@ def obj_text(mesh: Mesh, mtl_name: str | None = None, material: str = "material0
     if len(t):
         idx = t + 1
         width = _n_digits(idx.max())
-        # each vertex's number once, then looked up by the faces (a vertex is in about six of them)
-        d = _digits(np.arange(len(v) + 1), width)[idx] if len(v) else _digits(idx, width)  # (M, 3, width)
-        space = np.full(idx.shape + (1,), 32, dtype=np.uint8)
+        # each vertex's cell (" a/a", or " a" without UVs) once, then looked up by the faces (a vertex is in
+        # about six of them)
+        d = _digits(np.arange((len(v) if len(v) else idx.max()) + 1), width)
+        cells = np.empty((len(d), 2 * width + 2 if has_uv else width + 1), dtype=np.uint8)
+        cells[:, 0] = 32
+        cells[:, 1:1 + width] = d
         if has_uv:
-            slash = np.full(idx.shape + (1,), 47, dtype=np.uint8)
-            cells = np.concatenate([space, d, slash, d], axis=-1)
-        else:
-            cells = np.concatenate([space, d], axis=-1)
-        out.append(_lines(b"f", cells))
+            cells[:, 1 + width] = 47
+            cells[:, 2 + width:] = d
+        out.append(_lines(b"f", cells[idx]))
     return b"".join(out)
 
 
