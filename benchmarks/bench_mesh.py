@@ -4,11 +4,15 @@ Runs ``rgbd2scene mesh`` on the TUM frame (and the bundled sample) several times
 variants interleaved (run k of every variant before run k+1 of any, so a change of the machine's load hits
 them alike), and prints the median stage times reported by the command, the wall time including the
 interpreter start and the CPU time of the process (all threads), the fastest run's wall time, and the median
-load average seen after the runs (other processes: on a shared machine it decides the wall time).
+load average seen after the runs (other processes: on a shared machine it decides the wall time). **start s**
+is the wall time outside the command's own clock (interpreter start, imports, reading the capture, exit): wall
+minus compute and write.
 ``--against DIR`` runs another checkout of the repository (its ``rgbd2scene`` on ``PYTHONPATH``) as one more
-variant, for a ratio measured side by side. ``--realtime`` runs each command under ``chrt -f 10`` (SCHED_FIFO:
-it takes the CPUs ahead of every ordinary process, which keep the 5 % the kernel's real-time throttling leaves
-them), the wall time it would have on an idle machine; it needs root and briefly slows everything else down.
+variant, for a ratio measured side by side: the ratio of the medians and the median and range of the ratios
+within a round (the two runs of a round saw the same load). ``--realtime`` runs each command under
+``chrt -f 10`` (SCHED_FIFO: it takes the CPUs ahead of every ordinary process, which keep the 5 % the kernel's
+real-time throttling leaves them), the wall time it would have on an idle machine; it needs root and briefly
+slows everything else down.
 Usage: ``python benchmarks/bench_mesh.py [--repeats N] [--against DIR] [--realtime]``.
 """
 
@@ -53,7 +57,14 @@ def run_once(args: list[str], extra: list[str], code: Path = REPO, prefix: tuple
         cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         timings = json.loads((Path(tmp) / "scene.json").read_text())["timings"]
     cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
-    return {"wall_s": wall, "cpu_s": cpu, "load": os.getloadavg()[0], **timings}
+    return {"wall_s": wall, "cpu_s": cpu, "load": os.getloadavg()[0], **timings,
+            "start_s": wall - timings["compute_s"] - timings["write_s"]}
+
+
+def _ratios(runs: list[dict], against: list[dict], key: str) -> str:
+    """The median and range of the per-round ratios ``runs[i][key] / against[i][key]``."""
+    ratios = [r[key] / a[key] for r, a in zip(runs, against, strict=True)]
+    return f"{statistics.median(ratios):.2f}x ({min(ratios):.2f}-{max(ratios):.2f})"
 
 
 def main(argv=None) -> int:
@@ -71,10 +82,10 @@ def main(argv=None) -> int:
     print(f"rgbd2scene mesh, median of {args.repeats} fresh processes (variants interleaved), defaults: fill auto, "
           f"ray smoothing x10; {os.cpu_count()} CPUs, load average (1 min) at start {load:.2f}"
           f"{'; real-time priority (chrt -f 10)' if args.realtime else ''}")
-    header = ("| case | variant | fill s | mesh s | smooth s | compute s | write s | wall s | CPU s | fastest wall s "
-              "| load (1 min) |")
+    header = ("| case | variant | start s | fill s | texture s | mesh s | smooth s | compute s | write s | wall s "
+              "| CPU s | fastest wall s | load (1 min) |")
     print(header)
-    print("|---" * 11 + "|")
+    print("|---" * 13 + "|")
     for name, case_args in cases():
         runs: dict[str, list[dict]] = {label: [] for label, _, _ in variants}
         for _ in range(args.repeats):
@@ -85,7 +96,8 @@ def main(argv=None) -> int:
             med = {k: statistics.median(r[k] for r in runs[label]) for k in runs[label][0]}
             rows[label] = med
             fastest = min(r["wall_s"] for r in runs[label])
-            print(f"| {name} | {label} | {med['fill_s']:.3f} | {med['mesh_s']:.3f} | {med['smooth_s']:.3f} | "
+            print(f"| {name} | {label} | {med['start_s']:.3f} | {med['fill_s']:.3f} | {med['texture_s']:.3f} | "
+                  f"{med['mesh_s']:.3f} | {med['smooth_s']:.3f} | "
                   f"{med['compute_s']:.3f} | {med['write_s']:.3f} | {med['wall_s']:.2f} | {med['cpu_s']:.2f} | "
                   f"{fastest:.2f} | {med['load']:.1f} |")
         a, b = rows[variants[0][0]]["wall_s"], rows[variants[1][0]]["wall_s"]
@@ -93,7 +105,9 @@ def main(argv=None) -> int:
         if args.against:
             c = rows[variants[2][0]]
             print(f"{name}: this checkout / {args.against}: wall {a / c['wall_s']:.2f}x, "
-                  f"CPU {rows[variants[0][0]]['cpu_s'] / c['cpu_s']:.2f}x")
+                  f"CPU {rows[variants[0][0]]['cpu_s'] / c['cpu_s']:.2f}x; per round: "
+                  + ", ".join(f"{key.removesuffix('_s')} {_ratios(runs[variants[0][0]], runs[variants[2][0]], key)}"
+                              for key in ("wall_s", "cpu_s", "start_s", "fill_s", "mesh_s", "write_s")))
     print(f"load average (1 min) at end {os.getloadavg()[0]:.2f}; targets: fill <= 1 s, wall <= 3 s (TUM)")
     return 0
 
