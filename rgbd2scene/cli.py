@@ -6,6 +6,7 @@ User errors print one line ``error: ...`` on stderr and exit with status 2, with
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
 import time
 
@@ -367,6 +368,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command of ``argv`` (default: the process's own arguments) and return its exit status."""
+    if argv is None:  # the process's own command (the console script): the interpreter exits after it
+        _skip_final_collections()
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
     args = parser.parse_args(argv)
@@ -384,6 +388,18 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+
+
+def _skip_final_collections() -> None:
+    """Freeze the heap when the interpreter exits (an ``atexit`` handler, so after the command's own exit code).
+
+    The interpreter's last garbage collections traverse every object of NumPy, SciPy and OpenCV: 0.1-0.2 s at
+    the end of every command; frozen objects are skipped. Cyclic garbage is then not collected, only freed with
+    the process: nothing of ours waits for a collection to be closed (every writer closes its own file).
+    """
+    import atexit
+
+    atexit.register(gc.freeze)
 
 
 if __name__ == "__main__":

@@ -198,3 +198,23 @@ def test_capture_mode_errors_are_one_line_exit_2(capture_inputs, capsys, command
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
     assert message in lines[0], lines[0]
     assert not (out / "scene.json").exists()
+
+
+@pytest.mark.parametrize("own_arguments", [True, False])
+def test_the_process_command_freezes_the_heap_at_exit_a_call_does_not(own_arguments):
+    """Run as the process's command (no ``argv``), the CLI freezes the heap when the interpreter exits, so that
+    its last collections skip NumPy's, SciPy's and OpenCV's objects; called with arguments (as here, by a
+    program that goes on) it leaves the collector alone."""
+    call = "cli.main()" if own_arguments else "cli.main(['mesh', '--help'])"
+    code = ("import atexit, gc, sys\n"
+            "atexit.register(lambda: print('frozen at exit:', gc.get_freeze_count() > 0))  # runs after the CLI's\n"
+            "from rgbd2scene import cli\n"
+            "sys.argv = ['rgbd2scene', 'mesh', '--help']\n"
+            "try:\n"
+            f"    {call}\n"
+            "except SystemExit:\n"
+            "    pass\n"
+            "assert gc.get_freeze_count() == 0\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip().endswith(f"frozen at exit: {own_arguments}")
