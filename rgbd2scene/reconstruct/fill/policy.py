@@ -46,22 +46,21 @@ docstring held until session 10).
    where the residual is within twice the capture's own noise, the pixel within the support's spread and
    the plane within its depth range; within :data:`PLANE_RAMP` px of the rim the plane is blended in from
    the fill above, which is close to its data there. Walls, floors and desk tops pass; the tissue sample's
-   curved surface mostly does not. **Quadrics** then replace that fill (planes included) where a hole's own
-   ring shows one (:func:`~rgbd2scene.reconstruct.fill.planes.quadric_fill`): per guided hole, a robust
-   quadric in inverse depth fitted to the valid pixels within :data:`~rgbd2scene.reconstruct.fill.planes.QUADRIC_REACH`
-   (10) px of it, taken on the planes' tests (residual within twice the noise, the pixel within the ring's
-   spread, the quadric within its depth range), blended in over the same ramp. A curved surface seen
-   closely is a quadric to second order; a colour segment is not needed (on the tissue sample texture edges
-   are not depth edges). It serves the smaller guided holes of smooth curved surfaces (the tissue sample's
-   blobs: tuning rows up to 0.15 better) and of the TUM frame's; over a large hole nothing of low order fits:
-   on the tissue sample's large holes even the quadric fitted to the hidden truth itself is worse than the best
-   plain fill on 14 of 16 rows, so the ring test refuses them (residual 5-10 times the noise) and their misses
-   stay (``fill.md``, session 12). Session 12: tuning split 0.677 -> 0.670, rows above 1.10 5 -> 5; held-out
-   0.705 -> 0.700, 6 -> 6. Without RGB: the biharmonic fill, clipped to the rim's range where the
-   hole bridges a step. Session 10 (planes and the thin plate together, against session 9's per-hole choice
-   among the mean of the NYU colorization and the biharmonic fill, each alone, by copies of the hole laid on
-   valid depth, whose evidence proved no better than always taking the mean): tuning split 0.753 -> 0.680, rows
-   above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9; report split 0.705 -> 0.673, 18 -> 17
+   curved surface mostly does not. **Quadrics** then replace that fill (planes included) where a hole's own ring
+   shows one (:func:`~rgbd2scene.reconstruct.fill.planes.quadric_fill`): per guided hole, a robust quadric in
+   inverse depth fitted to the valid pixels within :data:`~rgbd2scene.reconstruct.fill.planes.QUADRIC_REACH` (10) px
+   of it, taken on the planes' tests (residual within twice the noise, the pixel within the ring's spread, the
+   quadric within its depth range), blended in over the same ramp. A curved surface seen closely is a quadric to
+   second order; a colour segment is not needed (on the tissue sample texture edges are not depth edges). It serves
+   the smaller guided holes of smooth curved surfaces (the tissue sample's blobs: tuning rows up to 0.15 better) and
+   of the TUM frame's; over a large hole nothing of low order fits: on the tissue sample's large holes even the
+   quadric fitted to the hidden truth itself is worse than the best plain fill on 15 of 16 rows, so the ring test
+   refuses them (residual 4.5-11 times the noise on their rings) and their misses stay (``fill.md``, session 12).
+   Session 12: tuning split 0.677 -> 0.670, rows above 1.10 5 -> 5; held-out 0.705 -> 0.700, 6 -> 6. Without RGB:
+   the biharmonic fill, clipped to the rim's range where the hole bridges a step. Session 10 (planes and the thin
+   plate together, against session 9's per-hole choice among the mean of the NYU colorization and the biharmonic
+   fill, each alone, by copies of the hole laid on valid depth, whose evidence proved no better than always taking
+   the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9; report split 0.705 -> 0.673, 18 -> 17
    of 101. A highlight (a hole at least half of whose pixels are bright, unsaturated and brighter than
    the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) is not guided by
    colour, whatever its width: its colour is the light's, not the surface's (3.).
