@@ -60,10 +60,10 @@ docstring held until session 10).
    the biharmonic fill, clipped to the rim's range where the hole bridges a step. Session 10 (planes and the thin
    plate together, against session 9's per-hole choice among the mean of the NYU colorization and the biharmonic
    fill, each alone, by copies of the hole laid on valid depth, whose evidence proved no better than always taking
-   the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9; report split 0.705 -> 0.673, 18 -> 17
-   of 101. A highlight (a hole at least half of whose pixels are bright, unsaturated and brighter than
-   the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) is not guided by
-   colour, whatever its width: its colour is the light's, not the surface's (3.).
+   the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
+   report split 0.705 -> 0.673, 18 -> 17 of 101. A highlight (a hole at least half of whose pixels are bright,
+   unsaturated and brighter than the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`)
+   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
    smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
    invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
