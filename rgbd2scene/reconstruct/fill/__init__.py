@@ -2,7 +2,8 @@
 
 ``holes``: which invalid pixels lie on the captured surface (enclosure, border band, beyond range) and
 the depth steps and shadows across them; ``solvers``: the fills themselves, pure functions on arrays;
-``planes``: planes per colour segment where the capture shows them (``auto``'s guided holes);
+``planes``: planes per colour segment, and quadrics per hole, where the capture shows them (``auto``'s guided
+holes);
 ``policy``: :func:`fill_depth`, which applies the one to the other (``auto`` chooses per hole).
 """
 

@@ -1,4 +1,5 @@
-"""Piecewise-planar hole filling from colour segments (indoor captures: walls, floors, desks).
+"""Piecewise-planar hole filling from colour segments (indoor captures: walls, floors, desks), and quadrics
+round single holes (curved surfaces).
 
 The colour image is cut into segments (:func:`colour_segments`: Felzenszwalb's graph segmentation of a
 crop round the holes, at reduced resolution); each segment that a hole cuts gets a plane in inverse depth,
@@ -9,6 +10,9 @@ support on the plane within a small relative residual, the residual's scale near
 (:func:`sensor_noise`: a curved surface's shows above it), enough support, the hole pixels within the
 support's spread (an interpolation, not an extrapolation far beyond it), and the plane's depth at them
 within the support's range. Elsewhere nothing is filled (NaN): the caller keeps its own fill there.
+
+:func:`quadric_fill` applies the same evidence one order up, per hole rather than per segment: a quadric in
+inverse depth fitted to the hole's ring of valid pixels, taken where the ring shows it within the noise.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from rgbd2scene.reconstruct.fill.holes import valid_depth
+from rgbd2scene.reconstruct.fill.holes import components, valid_depth
 
 #: Relative residual (|1/z_plane - 1/z| * z, about the relative depth error) under which a support pixel
 #: counts as on its segment's plane.
@@ -37,6 +41,10 @@ PLANE_REACH = 40
 PLANE_SPREAD = 2.5
 #: The plane's depth at the hole pixels must lie within the support's inverse-depth range widened by this share of it.
 PLANE_RANGE = 0.25
+#: A hole's quadric (:func:`quadric_fill`) is fitted to its valid pixels within this many px of it.
+QUADRIC_REACH = 10
+#: Fewest ring pixels a quadric is fitted to (of every other row and column).
+QUADRIC_MIN_SUPPORT = 40
 
 
 @dataclass
@@ -123,11 +131,16 @@ def fit_segment_planes(inv: np.ndarray, u: np.ndarray, v: np.ndarray, seg: np.nd
     coef, rel = _irls(np.stack([np.ones_like(u), u, v], axis=1), inv, seg, n, tol, iterations)
     support = np.bincount(seg, minlength=n).astype(np.float64)
     share = np.bincount(seg, weights=np.abs(rel) < tol, minlength=n) / np.maximum(support, 1)
+    return SegmentPlanes(coef, support, share, _robust_scale(rel, seg, n))
+
+
+def _robust_scale(rel: np.ndarray, seg: np.ndarray, n: int) -> np.ndarray:
+    """Per segment, 1.4826 times the median absolute value of ``rel`` over its pixels (inf where it has none)."""
+    support = np.bincount(seg, minlength=n)
     order = np.lexsort((np.abs(rel), seg))
     first = np.searchsorted(seg[order], np.arange(n))
-    mid = np.minimum(first + (support.astype(int) // 2), max(seg.size - 1, 0))
-    mad = np.where(support > 0, 1.4826 * np.abs(rel[order][mid]), np.inf)
-    return SegmentPlanes(coef, support, share, mad)
+    mid = np.minimum(first + support // 2, max(seg.size - 1, 0))
+    return np.where(support > 0, 1.4826 * np.abs(rel[order][mid]), np.inf)
 
 
 def sensor_noise(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
@@ -210,8 +223,107 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     good = (planes.support >= min_support) & (planes.inliers >= inliers) & (planes.scale <= noise_ratio * noise) & cut
     if not good.any():
         return out
-    # the support's spread in the image and its inverse-depth range, per segment
-    cnt = np.maximum(planes.support, 1)
+    hv, hu = np.nonzero(m)
+    hs = seg[m]
+    take = good[hs]
+    hv, hu, hs = hv[take], hu[take], hs[take]
+    qu = (hu - ww / 2.0) / norm
+    qv = (hv - hh / 2.0) / norm
+    pred = planes.coef[hs, 0] + planes.coef[hs, 1] * qu + planes.coef[hs, 2] * qv
+    ok = _within_support(su, sv, ss, inv, n, qu, qv, hs, pred, spread, margin)
+    out[r0 + hv[ok], c0 + hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
+    return out
+
+
+def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_REACH, tol: float = PLANE_TOL,
+                 inliers: float = PLANE_INLIERS, min_support: int = QUADRIC_MIN_SUPPORT,
+                 noise_ratio: float = PLANE_NOISE, spread: float = PLANE_SPREAD,
+                 margin: float = PLANE_RANGE) -> np.ndarray:
+    """The pixels of ``mask`` filled from a quadric fitted round each of its holes, where the capture shows one.
+
+    Each 8-connected hole of ``mask`` gets a quadric in inverse depth (1/z a polynomial of degree 2 in the
+    pixel coordinates: a curved surface seen at close range, to second order), fitted robustly to the valid
+    pixels within ``reach`` px of the hole (its ring; on every other row and column) as the planes are
+    (:func:`fit_segment_planes`'s reweighting, six columns). Its pixels take the quadric on the tests of
+    :func:`planar_fill`: at least ``min_support`` ring pixels, ``inliers`` of them within ``tol`` of it, the
+    residual's robust scale at most ``noise_ratio`` times the capture's noise (:func:`sensor_noise`, on the
+    crop round the holes: a ring that a fold, a crease or a depth step crosses fails it), the pixel within
+    the ring's spread and the quadric within its inverse-depth range widened by ``margin``. A narrow ring
+    (``reach`` 10 px, not the planes' 40; 8 and 15 px did worse on the benchmark's tuning split): a surface
+    is a quadric only locally, and over a large hole none fits (the tissue sample's large holes: a quadric
+    from a ring of 20-80 px has 1.1-4.4 times the best plain fill's error there, and the ring test refuses
+    them; ``benchmarks/results/fill.md``, session 12).
+
+    Parameters
+    ----------
+    depth : float (H, W) metres, NaN = invalid.
+    mask : bool (H, W) the pixels to fill.
+    reach, tol, inliers, min_support, noise_ratio, spread, margin : the tests above.
+
+    Returns
+    -------
+    float32 (H, W): the quadric's depth on the pixels of ``mask`` it fills, NaN elsewhere.
+    """
+    h, w = depth.shape
+    out = np.full((h, w), np.nan, dtype=np.float32)
+    if not mask.any():
+        return out
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h)
+    c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
+    d = depth[r0:r1, c0:c1]
+    m = mask[r0:r1, c0:c1]
+    labels, n = components(m)
+    n += 1
+    valid = valid_depth(d) & ~m
+    # each ring pixel to a hole within reach (the larger label where two rings meet)
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+    owner = cv2.dilate(labels.astype(np.float32), disk).astype(np.int64)
+    sup = valid & (owner > 0)
+    sup[1::2, :] = False  # every other row and column, as the planes
+    sup[:, 1::2] = False
+    if not sup.any():
+        return out
+    vv, uu = np.nonzero(sup)
+    ss = owner[sup]
+    inv = 1.0 / d[sup].astype(np.float64)
+    # coordinates centred on each ring and scaled by its extent: the squares stay well conditioned
+    cnt = np.maximum(np.bincount(ss, minlength=n), 1)
+    cu = np.bincount(ss, weights=uu, minlength=n) / cnt
+    cv = np.bincount(ss, weights=vv, minlength=n) / cnt
+    ext = np.zeros(n)
+    np.maximum.at(ext, ss, np.maximum(np.abs(uu - cu[ss]), np.abs(vv - cv[ss])))
+    ext = np.maximum(ext, 1.0)
+    su, sv = (uu - cu[ss]) / ext[ss], (vv - cv[ss]) / ext[ss]
+    coef, rel = _irls(_quadric_basis(su, sv), inv, ss, n, tol, 4)
+    share = np.bincount(ss, weights=np.abs(rel) < tol, minlength=n) / cnt
+    scale = _robust_scale(rel, ss, n)
+    noise = sensor_noise(d, valid)
+    good = (np.bincount(ss, minlength=n) >= min_support) & (share >= inliers) & (scale <= noise_ratio * noise)
+    good[0] = False
+    hv, hu = np.nonzero(m)
+    hs = labels[m]
+    take = good[hs]
+    hv, hu, hs = hv[take], hu[take], hs[take]
+    qu, qv = (hu - cu[hs]) / ext[hs], (hv - cv[hs]) / ext[hs]
+    pred = (_quadric_basis(qu, qv) * coef[hs]).sum(axis=1)
+    ok = _within_support(su, sv, ss, inv, n, qu, qv, hs, pred, spread, margin)
+    out[r0 + hv[ok], c0 + hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
+    return out
+
+
+def _quadric_basis(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Columns 1, u, v, u^2, u v, v^2."""
+    return np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=1)
+
+
+def _within_support(su, sv, ss, inv, n, qu, qv, hs, pred, spread: float, margin: float) -> np.ndarray:
+    """Which hole pixels (normalised coordinates ``qu, qv``, group ``hs``, predicted inverse depth ``pred``) lie
+    within Mahalanobis distance ``spread`` of their group's support pixels (``su, sv``, group ``ss``, inverse
+    depth ``inv``) in the image, with ``pred`` positive and within the support's inverse-depth range widened by
+    ``margin`` of it on either side."""
+    cnt = np.maximum(np.bincount(ss, minlength=n), 1)
     mu = np.bincount(ss, weights=su, minlength=n) / cnt
     mv = np.bincount(ss, weights=sv, minlength=n) / cnt
     cuu = np.bincount(ss, weights=(su - mu[ss]) ** 2, minlength=n) / cnt + 1e-6
@@ -221,18 +333,9 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     hi = np.full(n, -np.inf)
     np.minimum.at(lo, ss, inv)
     np.maximum.at(hi, ss, inv)
-    hv, hu = np.nonzero(m)
-    hs = seg[m]
-    take = good[hs]
-    hv, hu, hs = hv[take], hu[take], hs[take]
-    qu = (hu - ww / 2.0) / norm
-    qv = (hv - hh / 2.0) / norm
     du, dv = qu - mu[hs], qv - mv[hs]
     det = cuu[hs] * cvv[hs] - cuv[hs] ** 2
     maha = (cvv[hs] * du**2 - 2 * cuv[hs] * du * dv + cuu[hs] * dv**2) / np.maximum(det, 1e-12)
-    pred = planes.coef[hs, 0] + planes.coef[hs, 1] * qu + planes.coef[hs, 2] * qv
     span = (hi - lo)[hs]
     sane = (pred > 0) & (pred >= lo[hs] - margin * span) & (pred <= hi[hs] + margin * span)
-    ok = (maha <= spread**2) & sane
-    out[r0 + hv[ok], c0 + hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
-    return out
+    return (maha <= spread**2) & sane

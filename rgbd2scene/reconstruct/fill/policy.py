@@ -46,14 +46,24 @@ docstring held until session 10).
    where the residual is within twice the capture's own noise, the pixel within the support's spread and
    the plane within its depth range; within :data:`PLANE_RAMP` px of the rim the plane is blended in from
    the fill above, which is close to its data there. Walls, floors and desk tops pass; the tissue sample's
-   curved surface mostly does not. Without RGB: the biharmonic fill, clipped to the rim's range where the
-   hole bridges a step. Session 10 (both changes together, against session 9's per-hole choice among the
-   mean of the NYU colorization and the biharmonic fill, each alone, by copies of the hole laid on valid
-   depth, whose evidence proved no better than always taking the mean): tuning split 0.753 -> 0.680, rows
-   above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9; report split 0.705 -> 0.673, 18 -> 17
-   of 101. A highlight (a hole at least half of whose pixels are bright, unsaturated and brighter than
-   the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`) is not guided by
-   colour, whatever its width: its colour is the light's, not the surface's (3.).
+   curved surface mostly does not. **Quadrics** then replace that fill (planes included) where a hole's own ring
+   shows one (:func:`~rgbd2scene.reconstruct.fill.planes.quadric_fill`): per guided hole, a robust quadric in
+   inverse depth fitted to the valid pixels within :data:`~rgbd2scene.reconstruct.fill.planes.QUADRIC_REACH` (10) px
+   of it, taken on the planes' tests (residual within twice the noise, the pixel within the ring's spread, the
+   quadric within its depth range), blended in over the same ramp. A curved surface seen closely is a quadric to
+   second order; a colour segment is not needed (on the tissue sample texture edges are not depth edges). It serves
+   the smaller guided holes of smooth curved surfaces (the tissue sample's blobs: tuning rows up to 0.15 better) and
+   of the TUM frame's; over a large hole nothing of low order fits: on the tissue sample's large holes even the
+   quadric fitted to the hidden truth itself is worse than the best plain fill on 15 of 16 rows, so the ring test
+   refuses them (residual 4.5-11 times the noise on their rings) and their misses stay (``fill.md``, session 12).
+   Session 12: tuning split 0.677 -> 0.670, rows above 1.10 5 -> 5; held-out 0.705 -> 0.700, 6 -> 6. Without RGB:
+   the biharmonic fill, clipped to the rim's range where the hole bridges a step. Session 10 (planes and the thin
+   plate together, against session 9's per-hole choice among the mean of the NYU colorization and the biharmonic
+   fill, each alone, by copies of the hole laid on valid depth, whose evidence proved no better than always taking
+   the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
+   report split 0.705 -> 0.673, 18 -> 17 of 101. A highlight (a hole at least half of whose pixels are bright,
+   unsaturated and brighter than the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`)
+   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
    smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
    invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
@@ -85,8 +95,8 @@ session 10: 0.76-0.88 s wall, 1.30-1.51 s CPU (``benchmarks/results/fill.md``).
 
 ``FillResult.method`` names the base fills used, e.g. ``"auto: background+nyu_colorization+guided_thin_plate"``
 (``FillResult.stats["auto_pixels"]``: how many pixels each filled; a pixel filled by the mean of two counts
-for both; ``planes``: the guided holes' pixels that took their segment's plane, which count for their other
-fill too).
+for both; ``planes``, ``quadrics``: the guided holes' pixels that took their segment's plane or their hole's
+quadric, which count for their other fill too).
 """
 
 from __future__ import annotations
@@ -112,7 +122,7 @@ from rgbd2scene.reconstruct.fill.holes import (
     step_runs,
     valid_depth,
 )
-from rgbd2scene.reconstruct.fill.planes import planar_fill
+from rgbd2scene.reconstruct.fill.planes import planar_fill, quadric_fill
 from rgbd2scene.reconstruct.fill.solvers import (
     as_depth,
     check_rgb_size,
@@ -351,6 +361,8 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         band_fills = side.submit(_band_fills, solves, work, out, rgb, edge, band, border_width) if edge.any() else None
         planar = (rest & (wide & ~lit)[labels]) if guided and rgb is not None else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
+        curved = (rest & (wide & ~lit)[labels]) if guided and rgb is not None else None
+        curve_fill = None if curved is None else solves.submit(quadric_fill, work, curved)
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
         ways, ways_used, band_jobs = ((np.zeros(work.shape, dtype=int), [], {}) if band_fills is None
                                       else band_fills.result())
@@ -377,16 +389,12 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
-    if plane_fill is not None:  # colour segments whose valid depth shows a plane: the plane
-        flat = plane_fill.result()
-        sel = planar & np.isfinite(flat)
-        if PLANE_RAMP > 0:  # beside the rim the other fills are close to their data: the plane deeper in
-            w = np.minimum(cv2.distanceTransform(planar.astype(np.uint8), cv2.DIST_L2, 3)[sel] / PLANE_RAMP, 1.0)
-            out[sel] = w * flat[sel] + (1 - w) * out[sel]
-        else:
-            out[sel] = flat[sel]
-        if sel.any():
-            counts["planes"] = int(sel.sum())
+    # colour segments whose valid depth shows a plane: the plane; then holes whose ring shows a quadric: the quadric
+    for name, where, model in (("planes", planar, plane_fill), ("quadrics", curved, curve_fill)):
+        if model is not None:
+            taken = _blend_in(out, model.result(), where)
+            if taken:
+                counts[name] = taken
     for k in ways_used:  # the band's stretches that their strips gave another fill than the thin plate
         sel = ways == k
         parts = BAND_CANDIDATES[BAND_NAMES[k]]
@@ -396,6 +404,16 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts, shadow
+
+
+def _blend_in(out: np.ndarray, model: np.ndarray, where: np.ndarray) -> int:
+    """``model``'s depth written into ``out`` on the pixels of ``where`` it holds, blended in linearly over the
+    :data:`PLANE_RAMP` px next to the rim of ``where`` (there the fill in ``out`` is close to its data, the
+    model deeper in); returns how many pixels took it."""
+    sel = where & np.isfinite(model)
+    w = np.minimum(cv2.distanceTransform(where.astype(np.uint8), cv2.DIST_L2, 3)[sel] / PLANE_RAMP, 1.0)
+    out[sel] = w * model[sel] + (1 - w) * out[sel]
+    return int(sel.sum())
 
 
 def _costly_first(jobs: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -438,7 +456,8 @@ NAMES = list(CANDIDATES)
 GUIDED = "nyu_colorization+guided_thin_plate"
 #: What narrow holes and highlights choose between on their copies, once per image (module docstring, 3.).
 SMOOTH = ("harmonic", "biharmonic")
-#: Within this many px of a guided hole's rim its plane is blended in linearly from the hole's other fill (step 2).
+#: Within this many px of a guided hole's rim its plane or quadric is blended in linearly from the hole's other fill
+#: (step 2).
 PLANE_RAMP = 8.0
 #: The colour segmentation of step 2's planes runs at 1 / this resolution (at 1/2: about 0.04 s more CPU on the TUM
 #: frame, tuning 0.732, 8 rows above 1.10, held-out 0.766, 15; at 1/3 0.731, 10 and 0.762, 15).
