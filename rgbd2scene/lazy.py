@@ -3,7 +3,7 @@
 A package's ``__init__`` lists its public names by submodule and sets ``__getattr__ = lazy_names(__name__,
 ...)``: ``from rgbd2scene.scene import SceneDescription`` still works, but ``rgbd2scene mesh``, which needs only
 ``rgbd2scene.scene.folder``, no longer imports (and, without cached bytecode, compiles) the scene model, the
-camera paths, the contact sheet, the dataset reader or the ray caster at every start.
+camera paths, the contact sheet, the dataset reader or the Open3D preview at every start.
 """
 
 from __future__ import annotations
