@@ -1059,7 +1059,7 @@ def test_smooth_rim_is_exact_on_a_quadratic_and_takes_the_white_noise_out():
     truth = _dome_in_inverse_depth()
     hole = disc(60, 80, 15)
     distance = ndimage.distance_transform_edt(~hole)
-    near = ~hole & (distance <= 8)
+    near = ~hole & (distance <= 6)
     clean = np.where(hole, np.nan, truth).astype(np.float32)
     exact = smooth_rim(clean, hole, 1e-3)
     assert np.allclose(exact[~hole], truth[~hole], rtol=1e-6)
@@ -1067,7 +1067,7 @@ def test_smooth_rim_is_exact_on_a_quadratic_and_takes_the_white_noise_out():
     smoothed = smooth_rim(noisy, hole, 1e-3)
     before = np.abs(noisy[near] - truth[near]).mean()
     assert np.abs(smoothed[near] - truth[near]).mean() < 0.4 * before
-    far = distance > 9  # the rim: 8 px (distances in a 3x3 approximation)
+    far = distance > 7  # the rim: 6 px (distances in a 3x3 approximation)
     assert np.array_equal(smoothed[far], noisy[far])  # only the rim
     assert np.isnan(smoothed[hole]).all()
 
@@ -1077,7 +1077,7 @@ def test_smooth_rim_keeps_a_depth_step():
     noisy = (z * (1 + 1e-3 * np.random.default_rng(0).standard_normal((H, W)))).astype(np.float32)
     hole = disc(60, 82, 5)  # its rim reaches across the box's outline (between columns 89 and 90)
     noisy[hole] = np.nan
-    rim = ~hole & (ndimage.distance_transform_edt(~hole) <= 8)
+    rim = ~hole & (ndimage.distance_transform_edt(~hole) <= 6)
     beside = rim & (np.abs(np.arange(W) - 89.5) < 1)[None, :]
     smoothed = smooth_rim(noisy, hole, 1e-3)
     assert np.array_equal(smoothed[beside], noisy[beside])  # no quadratic fits there: as measured

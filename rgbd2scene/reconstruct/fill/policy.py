@@ -83,18 +83,18 @@ docstring held until session 10).
    own: :func:`~rgbd2scene.reconstruct.fill.planes.noise_correlation` of neighbouring pixels' residuals below
    :data:`WHITE_NOISE`) and above the floor (:data:`~rgbd2scene.reconstruct.fill.planes.NOISE_FLOOR`), the
    :data:`SMOOTH` fills (step 3's holes and the band's thin plate and membrane) fill from the rim smoothed
-   (:func:`~rgbd2scene.reconstruct.fill.solvers.smooth_rim`: each valid pixel within 8 px of a hole or the band
-   takes a local quadratic fit of inverse depth, Gaussian of 4 px, where that fit's residual is within 3 times
+   (:func:`~rgbd2scene.reconstruct.fill.solvers.smooth_rim`: each valid pixel within 6 px of a hole or the band
+   takes a local quadratic fit of inverse depth, Gaussian of 3 px, where that fit's residual is within 3 times
    the noise, so a depth step stays as measured); the output keeps the measured depth. Where neighbouring
    pixels share their deviations (a Kinect's disparity quantised in plateaus, fine relief: every real capture
    of the benchmark, 0.56-0.79) a hole's pixels share them with its rim too, and the measured rim is the better
-   data (smoothed on the TUM frame too: tuning split 0.677 -> 0.687, rows above 1.10 5 -> 8, its specular rows
-   up by 0.10-0.24); noise-free depth (CT, a renderer) is not smoothed either (its residual is the curvature's,
-   correlated). Not for the guided holes (2.): the wide holes' error is the fill's model, not the rim's noise
-   (tissue sample, wide ellipses: filled from the true rim their error is no smaller), and smoothing their rim
-   moved those rows by chance, more up than down. Of the benchmark's captures only the tissue sample's rim is
-   smoothed: tuning split 0.6773 -> 0.6705 (rows above 1.10 5 -> 5), held-out 0.7053 -> 0.6952 (6 -> 5);
-   ``fill.md`` session 12.
+   data (smoothed on the TUM frame too, with a 4 px Gaussian: tuning split 0.677 -> 0.687, rows above 1.10
+   5 -> 8, its specular rows up by 0.10-0.24); noise-free depth (CT, a renderer) is not smoothed either (its
+   residual is the curvature's, correlated). Not for the guided holes (2.): the wide holes' error is the fill's
+   model, not the rim's noise (tissue sample, wide ellipses: filled from the true rim their error is no
+   smaller), and smoothing their rim moved those rows by chance, more up than down. Of the benchmark's captures
+   only the tissue sample's rim is smoothed: tuning split 0.6773 -> 0.6672 (rows above 1.10 5 -> 5), held-out
+   0.7053 -> 0.6929 (6 -> 5); ``fill.md`` session 12.
 
 Time: all of ``auto``'s solves share one pool of a thread per core, the longest (the thin plate of holes
 and band, the guided holes' fills) started before the evidence is in, the band's other fills as soon as its

@@ -626,7 +626,7 @@ def fill_guided_thin_plate(
 _QUADRATIC = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]  # powers of (column, row) offsets
 
 
-def smooth_rim(depth: np.ndarray, mask: np.ndarray, noise: float, *, sigma: float = 4.0, width: float = 8.0,
+def smooth_rim(depth: np.ndarray, mask: np.ndarray, noise: float, *, sigma: float = 3.0, width: float = 6.0,
                gate: float = 3.0) -> np.ndarray:
     """The valid pixels within ``width`` px of ``mask`` with their noise smoothed away: each takes the value at
     its own position of a quadratic in inverse depth fitted to the valid pixels round it, weighted by a Gaussian
@@ -642,7 +642,10 @@ def smooth_rim(depth: np.ndarray, mask: np.ndarray, noise: float, *, sigma: floa
     depth : float (H, W) metres, NaN = invalid.
     mask : bool (H, W) the pixels to be filled (their rim is smoothed; other invalid pixels stay invalid).
     noise : the capture's relative noise (:func:`~rgbd2scene.reconstruct.fill.planes.sensor_noise`).
-    sigma : px, the Gaussian's standard deviation (the window reaches 3 sigma).
+    sigma : px, the Gaussian's standard deviation (the window reaches 3 sigma). ``auto``'s tuning rows (the tissue
+        sample's, its white noise): 3 px and ``width`` 6 px 0.6672 of the best reference (geometric mean), 2 px and
+        4 or 6 px 0.6680, 4 px and 8 px 0.6705, 6 px and 12 px 0.6885 and 14 rows above 1.10 instead of 5 (its
+        highlights lie on bulges that a wide window flattens); main 0.6773 (``fill.md``, session 12).
     width : px, how far from ``mask`` the rim reaches.
     gate : the largest residual, in multiples of the noise, at which a pixel is smoothed.
 
