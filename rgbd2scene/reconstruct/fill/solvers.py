@@ -623,6 +623,7 @@ def fill_guided_thin_plate(
         grey = np.zeros(depth.shape)
     return _smooth_fill(depth, mask, _guided_plate_solver(grey, float(contrast), float(floor)), exclude, eight=True)
 
+
 _QUADRATIC = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]  # powers of (column, row) offsets
 
 
