@@ -27,15 +27,17 @@ from rgbd2scene.reconstruct.fill import (
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
+from rgbd2scene.reconstruct.fill.planes import noise_correlation
 from rgbd2scene.reconstruct.fill.policy import (
     BAND_STRETCH,
     NAMES,
+    WHITE_NOISE,
     HoleTraits,
     _base_fills,
     band_strips,
     choose_per_hole,
 )
-from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround, nyu_affinities
+from rgbd2scene.reconstruct.fill.solvers import clip_to_rim, clip_to_surround, nyu_affinities, smooth_rim
 from rgbd2scene.reconstruct.mesh import grid_mesh
 
 H, W = 120, 160
@@ -1037,6 +1039,84 @@ def test_without_colour_wide_holes_get_the_biharmonic_fill_whatever_the_narrow_o
     choice = choose_per_hole(depth, None, labels, traits)
     assert NAMES[choice[labels[60, 80]]] == "biharmonic"
     assert {NAMES[k] for k in np.delete(choice, [0, labels[60, 80]])} == {"harmonic"}  # the sensor's noise
+
+
+def _dome_in_inverse_depth() -> np.ndarray:
+    """A dome about 0.7 m away (the tissue sample's scale) whose inverse depth is a quadratic in the pixel
+    coordinates."""
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    inv = 1.0 / 0.7 + 0.0005 * u - 0.0003 * v - 4e-6 * ((u - 80) ** 2 + (v - 60) ** 2)
+    return (1.0 / inv).astype(np.float32)
+
+
+def _slits() -> np.ndarray:
+    """Eight narrow holes (3 px wide, 25 px long), well inside the image: ``auto``'s smooth fills take them."""
+    m = np.zeros((H, W), bool)
+    for r in (30, 60, 90):
+        for c in (25, 70, 115):
+            if (r, c) != (60, 70):
+                m[r - 1:r + 2, c:c + 25] = True
+    return m
+
+
+def test_smooth_rim_is_exact_on_a_quadratic_and_takes_the_white_noise_out():
+    truth = _dome_in_inverse_depth()
+    hole = disc(60, 80, 15)
+    distance = ndimage.distance_transform_edt(~hole)
+    near = ~hole & (distance <= 6)
+    clean = np.where(hole, np.nan, truth).astype(np.float32)
+    exact = smooth_rim(clean, hole, 1e-3)
+    assert np.allclose(exact[~hole], truth[~hole], rtol=1e-6)
+    noisy = (clean * (1 + 1e-3 * np.random.default_rng(0).standard_normal((H, W)))).astype(np.float32)
+    smoothed = smooth_rim(noisy, hole, 1e-3)
+    before = np.abs(noisy[near] - truth[near]).mean()
+    assert np.abs(smoothed[near] - truth[near]).mean() < 0.4 * before
+    far = distance > 7  # the rim: 6 px (distances in a 3x3 approximation)
+    assert np.array_equal(smoothed[far], noisy[far])  # only the rim
+    assert np.isnan(smoothed[hole]).all()
+
+
+def test_smooth_rim_keeps_a_depth_step():
+    z, _ = step_scene()
+    noisy = (z * (1 + 1e-3 * np.random.default_rng(0).standard_normal((H, W)))).astype(np.float32)
+    hole = disc(60, 82, 5)  # its rim reaches across the box's outline (between columns 89 and 90)
+    noisy[hole] = np.nan
+    rim = ~hole & (ndimage.distance_transform_edt(~hole) <= 6)
+    beside = rim & (np.abs(np.arange(W) - 89.5) < 1)[None, :]
+    smoothed = smooth_rim(noisy, hole, 1e-3)
+    assert np.array_equal(smoothed[beside], noisy[beside])  # no quadratic fits there: as measured
+    assert not np.array_equal(smooth_rim(noisy, hole, 1e-3, gate=np.inf)[beside], noisy[beside])
+    assert (smoothed[rim] != noisy[rim]).any()  # the rest of the rim is smoothed
+
+
+def test_noise_correlation_tells_white_noise_from_quantised_plateaus():
+    truth = _dome_in_inverse_depth()
+    valid = np.ones((H, W), bool)
+    white = truth * (1 + 1e-3 * np.random.default_rng(0).standard_normal((H, W)))
+    assert noise_correlation(white, valid) < 0.1
+    # a Kinect's disparity comes in steps: plateaus a few pixels wide that a hidden pixel shares with its rim
+    plateaus = 1.0 / (np.round(1.0 / truth / 0.004) * 0.004)
+    assert noise_correlation(plateaus.astype(np.float32), valid) > WHITE_NOISE
+    assert noise_correlation(truth, valid) > WHITE_NOISE  # noise-free: the residual is the curvature's
+
+
+def test_auto_fills_narrow_holes_from_the_smoothed_rim_where_the_noise_is_white():
+    """Under white noise the narrow holes' fill from the smoothed rim beats both smooth fills from the measured
+    one; under quantised plateaus (noise a hole shares with its rim) and without noise the rim stays as measured."""
+    truth = _dome_in_inverse_depth()
+    slits = _slits()
+
+    def error(fill):
+        return np.abs(fill[slits] - truth[slits]).mean()
+
+    white = (truth * (1 + 1e-3 * np.random.default_rng(0).standard_normal((H, W)))).astype(np.float32)
+    depth = np.where(slits, np.nan, white).astype(np.float32)
+    measured = [error(fill_harmonic(depth, slits)), error(fill_biharmonic(depth, slits))]
+    assert error(fill_depth(depth, None).depth) < 0.7 * min(measured)
+    for surface in (1.0 / (np.round(1.0 / truth / 0.004) * 0.004), truth):
+        depth = np.where(slits, np.nan, surface).astype(np.float32)
+        out = fill_depth(depth, None).depth
+        assert any(np.array_equal(out[slits], fill(depth, slits)[slits]) for fill in (fill_harmonic, fill_biharmonic))
 
 
 def test_copies_are_laid_only_of_the_holes_whose_fill_they_choose(monkeypatch):

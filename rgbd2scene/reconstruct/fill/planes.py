@@ -143,17 +143,43 @@ def _robust_scale(rel: np.ndarray, seg: np.ndarray, n: int) -> np.ndarray:
     return np.where(support > 0, 1.4826 * np.abs(rel[order][mid]), np.inf)
 
 
+def _window_residual(depth: np.ndarray, valid: np.ndarray, win: int) -> np.ndarray:
+    """The inverse depth relative to its mean over a ``win`` x ``win`` window, minus 1 (exact on a plane), at the
+    pixels whose window is all valid; NaN elsewhere."""
+    inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0).astype(np.float32)
+    full = cv2.blur(valid.astype(np.float32), (win, win), borderType=cv2.BORDER_CONSTANT) > 1 - 1e-6
+    mean = cv2.blur(inv, (win, win), borderType=cv2.BORDER_CONSTANT)
+    return np.where(full, inv / np.where(full, mean, 1.0) - 1.0, np.nan)
+
+
 def sensor_noise(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
     """The capture's relative depth noise: 1.4826 times the median absolute difference between the inverse depth
     and its mean over a ``win`` x ``win`` window (exact on a plane), over the pixels whose window is all valid,
     scaled by that difference's standard deviation for white noise, relative to the inverse depth."""
-    inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0).astype(np.float32)
-    full = cv2.blur(valid.astype(np.float32), (win, win), borderType=cv2.BORDER_CONSTANT) > 1 - 1e-6
-    if not full.any():
+    res = _window_residual(depth, valid, win)
+    res = np.abs(res[np.isfinite(res)])
+    if not res.size:
         return np.inf
-    mean = cv2.blur(inv, (win, win), borderType=cv2.BORDER_CONSTANT)
-    res = np.abs(inv[full] / mean[full] - 1.0)
     return max(float(1.4826 * np.median(res) / np.sqrt(1.0 - 1.0 / win**2)), NOISE_FLOOR)
+
+
+def noise_correlation(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
+    """How much neighbouring pixels share the capture's depth noise: the correlation of the residuals of
+    :func:`sensor_noise` (the inverse depth against its window's mean) of horizontally adjacent pixels, and of
+    vertically adjacent ones, whichever is larger (1 where no two adjacent pixels have one).
+
+    White noise, each pixel's own, gives about -0.02 (the windows' shared mean); a Kinect's disparity
+    quantised in plateaus, a surface's relief finer than the window, or the curvature of noise-free depth give
+    0.5-0.8 (the benchmark's captures: TUM 0.61, NYU 0.66, SUN 0.56, Redwood 0.79, the tissue sample's organ
+    from CT 0.80); the tissue sample's simulated Kinect noise on a smooth surface 0.26."""
+    res = _window_residual(depth, valid, win)
+    out = []
+    for a, b in ((res[:, :-1], res[:, 1:]), (res[:-1], res[1:])):
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() > 1:
+            x, y = a[ok].astype(np.float64), b[ok].astype(np.float64)
+            out.append(float((x * y).mean() / max(np.sqrt((x * x).mean() * (y * y).mean()), 1e-300)))
+    return max(out, default=1.0)
 
 
 def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: float = PLANE_TOL,

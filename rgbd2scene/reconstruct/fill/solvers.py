@@ -13,6 +13,7 @@ toolbox's works on inverse depth, where a plane is affine in pixel coordinates; 
 ``fill_biharmonic``       thin-plate (biharmonic) fill: smooth, exact on planes.
 ``fill_guided_thin_plate`` the thin plate with colour-weighted second differences: exact on planes, no slope
                           carried across a colour edge.
+``smooth_rim``            the valid pixels round the holes with white noise smoothed away (a local quadratic fit).
 ``clip_to_rim``           each hole's fill bounded by its rim's depth range (a thin plate overshoots at steps).
 ``clip_to_surround``      each pixel's fill bounded by the depth range of the valid pixels around it, widened
                           by a margin (a thin plate extrapolated towards the image edge overshoots).
@@ -621,6 +622,79 @@ def fill_guided_thin_plate(
     if grey is None:
         grey = np.zeros(depth.shape)
     return _smooth_fill(depth, mask, _guided_plate_solver(grey, float(contrast), float(floor)), exclude, eight=True)
+
+
+_QUADRATIC = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2)]  # powers of (column, row) offsets
+
+
+def smooth_rim(depth: np.ndarray, mask: np.ndarray, noise: float, *, sigma: float = 3.0, width: float = 6.0,
+               gate: float = 3.0) -> np.ndarray:
+    """The valid pixels within ``width`` px of ``mask`` with their noise smoothed away: each takes the value at
+    its own position of a quadratic in inverse depth fitted to the valid pixels round it, weighted by a Gaussian
+    of ``sigma`` px (exact on a quadratic, so a noise-free curved surface keeps its values).
+
+    A thin plate treats each rim pixel as exact and carries its noise, as a slope, into the hole; from the
+    smoothed rim it carries the surface's slope. A pixel keeps its measured depth where the fit's weighted root
+    mean square residual exceeds ``gate`` times the noise (a depth step or an outline in its window: no quadratic
+    fits there, and smoothing would blur the step).
+
+    Parameters
+    ----------
+    depth : float (H, W) metres, NaN = invalid.
+    mask : bool (H, W) the pixels to be filled (their rim is smoothed; other invalid pixels stay invalid).
+    noise : the capture's relative noise (:func:`~rgbd2scene.reconstruct.fill.planes.sensor_noise`).
+    sigma : px, the Gaussian's standard deviation (the window reaches 3 sigma). ``auto``'s tuning rows (the tissue
+        sample's, its white noise): 3 px and ``width`` 6 px 0.6672 of the best reference (geometric mean), 2 px and
+        4 or 6 px 0.6680, 4 px and 8 px 0.6705, 6 px and 12 px 0.6885 and 14 rows above 1.10 instead of 5 (its
+        highlights lie on bulges that a wide window flattens); main 0.6773 (``fill.md``, session 12).
+    width : px, how far from ``mask`` the rim reaches.
+    gate : the largest residual, in multiples of the noise, at which a pixel is smoothed.
+
+    Returns
+    -------
+    float32 (H, W): a copy of ``depth`` with the rim's pixels smoothed.
+    """
+    depth = as_depth(depth)
+    mask = np.asarray(mask, dtype=bool)
+    valid = valid_depth(depth) & ~mask
+    out = np.array(depth, dtype=np.float32, copy=True)
+    rim = valid & (cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 3) <= width)
+    if not rim.any():
+        return out
+    reach = int(np.ceil(3 * sigma))
+    rows, cols = np.nonzero(rim)
+    box = np.s_[max(rows.min() - reach, 0):rows.max() + reach + 1, max(cols.min() - reach, 0):cols.max() + reach + 1]
+    weight = valid[box].astype(np.float64)
+    inv = np.where(valid[box], 1.0 / np.where(valid[box], depth[box], 1.0), 0.0)
+    at = rim[box]
+    offsets = np.arange(-reach, reach + 1) / sigma  # in sigmas: the normal equations stay well conditioned
+    gauss = np.exp(-0.5 * offsets**2)
+    taps = [gauss * offsets**k for k in range(5)]
+
+    def moment(image: np.ndarray, power: tuple[int, int]) -> np.ndarray:
+        # correlation, not convolution: the sum over the window of image(p + o) * g(o) * o^power
+        return cv2.sepFilter2D(image, cv2.CV_64F, taps[power[0]], taps[power[1]], borderType=cv2.BORDER_CONSTANT)[at]
+
+    k = len(_QUADRATIC)
+    moments: dict[tuple[int, int], np.ndarray] = {}
+    normal = np.empty((int(at.sum()), k, k))
+    rhs = np.empty((normal.shape[0], k))
+    for i, (ci, ri) in enumerate(_QUADRATIC):
+        for j, (cj, rj) in enumerate(_QUADRATIC):
+            power = (ci + cj, ri + rj)
+            if power not in moments:
+                moments[power] = moment(weight, power)
+            normal[:, i, j] = moments[power]
+        rhs[:, i] = moment(weight * inv, (ci, ri))
+    # a nudge relative to the weight keeps a pixel whose valid neighbours lie on a line solvable
+    normal += 1e-9 * normal[:, :1, :1] * np.eye(k)
+    coef = np.linalg.solve(normal, rhs[..., None])[..., 0]
+    raw = inv[at]
+    residual = np.maximum(moment(weight * inv * inv, (0, 0)) - (coef * rhs).sum(axis=1), 0.0) / moments[(0, 0)]
+    smooth = np.where(np.sqrt(residual) <= gate * noise * raw, coef[:, 0], raw)
+    out[box][at] = (1.0 / smooth).astype(np.float32)
+    return out
+
 
 def clip_to_rim(filled: np.ndarray, depth: np.ndarray, mask: np.ndarray, width: float = 2.0) -> np.ndarray:
     """Each hole's fill clipped to the depth range of its rim: the valid pixels within ``width`` px of it.
