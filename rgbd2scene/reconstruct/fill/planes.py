@@ -182,6 +182,15 @@ def noise_correlation(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> flo
     return max(out, default=1.0)
 
 
+def _box_round(mask: np.ndarray, reach: int) -> tuple[int, int, int, int]:
+    """The rows ``r0:r1`` and columns ``c0:c1`` of ``mask``'s bounding box widened by ``reach`` px, within the image
+    (``mask`` must have a pixel)."""
+    h, w = mask.shape
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    return max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h), max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
+
+
 def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: float = PLANE_TOL,
                 inliers: float = PLANE_INLIERS, min_support: int = PLANE_MIN_SUPPORT, reach: int = PLANE_REACH,
                 spread: float = PLANE_SPREAD, margin: float = PLANE_RANGE, noise_ratio: float = PLANE_NOISE,
@@ -217,10 +226,7 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     out = np.full((h, w), np.nan, dtype=np.float32)
     if not mask.any():
         return out
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h)
-    c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
+    r0, r1, c0, c1 = _box_round(mask, reach)
     d = depth[r0:r1, c0:c1]
     m = mask[r0:r1, c0:c1]
     if segments is None:
@@ -294,10 +300,7 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     out = np.full((h, w), np.nan, dtype=np.float32)
     if not mask.any():
         return out
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    r0, r1 = max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h)
-    c0, c1 = max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
+    r0, r1, c0, c1 = _box_round(mask, reach)
     d = depth[r0:r1, c0:c1]
     m = mask[r0:r1, c0:c1]
     labels, n = components(m)
