@@ -132,7 +132,7 @@ def cmd_verify(args) -> int:
 
 
 def cmd_preview(args) -> int:
-    from rgbd2scene.pictures.preview import preview
+    from rgbd2scene.pictures.mesh_preview import preview
 
     out = preview(args.mesh, screenshot=args.screenshot, width=args.width, height=args.height)
     if out:

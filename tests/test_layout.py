@@ -156,15 +156,18 @@ def test_the_mesh_command_loads_no_scene_model_paths_or_dataset_and_package_name
 
 def test_a_lazy_package_name_is_its_submodule_object_at_every_access():
     """A package name is the object its submodule defines, at the first access and at every later one, also where
-    it shares its submodule's name (``rgbd2scene.pictures.preview``: importing the submodule on first use binds
-    the package's attribute to the submodule, which the name's object must then replace)."""
+    its submodule is imported directly (``rgbd2scene.pictures.preview``; a name that was its submodule's would
+    then be the module), and ``dir()`` lists the names before their first use."""
     code = ("import types\n"
             "import rgbd2scene.geometry, rgbd2scene.pictures, rgbd2scene.scene, rgbd2scene.stages\n"
             "for package in (rgbd2scene.geometry, rgbd2scene.pictures, rgbd2scene.scene, rgbd2scene.stages):\n"
+            "    assert set(package.__all__) <= set(dir(package)), package\n"
             "    for name in package.__all__:\n"
             "        first, second = getattr(package, name), getattr(package, name)\n"
             "        assert first is second and not isinstance(first, types.ModuleType), (name, first, second)\n"
             "from rgbd2scene.pictures import preview\n"
-            "assert callable(preview), preview\n")
+            "assert callable(preview), preview\n"
+            "import rgbd2scene.pictures.mesh_preview\n"
+            "assert rgbd2scene.pictures.preview is preview\n")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
     assert result.returncode == 0, result.stderr[-2000:]

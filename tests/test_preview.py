@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rgbd2scene.errors import UserError
-from rgbd2scene.pictures.preview import preview
+from rgbd2scene.pictures.mesh_preview import preview
 
 o3d = pytest.importorskip("open3d")
 

@@ -5,7 +5,7 @@ only."""
 
 from rgbd2scene.lazy import lazy_names
 
-_SUBMODULE_OF = {"write_overview": "overview", "write_frame_sheet": "contact_sheet", "preview": "preview"}
+_SUBMODULE_OF = {"write_overview": "overview", "write_frame_sheet": "contact_sheet", "preview": "mesh_preview"}
 
 __all__ = sorted(_SUBMODULE_OF)
-__getattr__ = lazy_names(__name__, _SUBMODULE_OF)
+__getattr__, __dir__ = lazy_names(__name__, _SUBMODULE_OF)

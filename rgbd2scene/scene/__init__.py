@@ -13,4 +13,4 @@ _SUBMODULE_OF = {
 }
 
 __all__ = sorted(_SUBMODULE_OF)
-__getattr__ = lazy_names(__name__, _SUBMODULE_OF)
+__getattr__, __dir__ = lazy_names(__name__, _SUBMODULE_OF)

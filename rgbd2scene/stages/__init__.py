@@ -18,4 +18,4 @@ _STAGE_OF = {
 }
 
 __all__ = sorted(_STAGE_OF)
-__getattr__ = lazy_names(__name__, _STAGE_OF)
+__getattr__, __dir__ = lazy_names(__name__, _STAGE_OF)
