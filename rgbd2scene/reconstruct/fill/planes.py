@@ -204,7 +204,8 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     of them within ``tol`` relative residual of the plane (a segment across two surfaces fails this), the
     residual's robust scale at most ``noise_ratio`` times the capture's own noise (:func:`sensor_noise`, on the
     crop: a curved surface fails this where its curvature shows above the noise, as on the tissue sample
-    against a Kinect's planar walls), the hole pixel within Mahalanobis distance ``spread`` of the support
+    against a Kinect's planar walls; where no window of the crop is all valid, so that there is no noise to
+    measure, no segment passes), the hole pixel within Mahalanobis distance ``spread`` of the support
     pixels' mean and covariance in the image (no extrapolation far beyond the support), and the plane's
     inverse depth there within the support's range widened by ``margin`` of it on either side.
 
@@ -229,12 +230,15 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     r0, r1, c0, c1 = _box_round(mask, reach)
     d = depth[r0:r1, c0:c1]
     m = mask[r0:r1, c0:c1]
+    valid = valid_depth(d) & ~m
+    noise = sensor_noise(d, valid)
+    if not np.isfinite(noise):  # no window of valid depth to measure the noise on: no evidence of a plane
+        return out
     if segments is None:
         seg = colour_segments(rgb[r0:r1, c0:c1], scale=seg_scale)
     else:
         seg = segments[r0:r1, c0:c1].astype(np.int32)
     n = int(seg.max()) + 1
-    valid = valid_depth(d) & ~m
     near = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) <= reach
     cut = np.zeros(n, dtype=bool)
     cut[seg[m]] = True
@@ -251,7 +255,6 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     ss = seg[sup]
     inv = 1.0 / d[sup].astype(np.float64)
     planes = fit_segment_planes(inv, su, sv, ss, n, tol)
-    noise = sensor_noise(d, valid)
     good = (planes.support >= min_support) & (planes.inliers >= inliers) & (planes.scale <= noise_ratio * noise) & cut
     if not good.any():
         return out
@@ -279,7 +282,8 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     (:func:`fit_segment_planes`'s reweighting, six columns). Its pixels take the quadric on the tests of
     :func:`planar_fill`: at least ``min_support`` ring pixels, ``inliers`` of them within ``tol`` of it, the
     residual's robust scale at most ``noise_ratio`` times the capture's noise (:func:`sensor_noise`, on the
-    crop round the holes: a ring that a fold, a crease or a depth step crosses fails it), the pixel within
+    crop round the holes: a ring that a fold, a crease or a depth step crosses fails it; no ring passes where
+    there is no noise to measure, as for the planes), the pixel within
     the ring's spread and the quadric within its inverse-depth range widened by ``margin``. A narrow ring
     (``reach`` 10 px, not the planes' 40; 8 and 15 px did worse on the benchmark's tuning split): a surface
     is a quadric only locally, and over a large hole none fits (the tissue sample's large holes: a quadric
@@ -303,9 +307,12 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     r0, r1, c0, c1 = _box_round(mask, reach)
     d = depth[r0:r1, c0:c1]
     m = mask[r0:r1, c0:c1]
+    valid = valid_depth(d) & ~m
+    noise = sensor_noise(d, valid)
+    if not np.isfinite(noise):  # no window of valid depth to measure the noise on: no evidence of a quadric
+        return out
     labels, n = components(m)
     n += 1
-    valid = valid_depth(d) & ~m
     # each ring pixel to a hole within reach (the larger label where two rings meet)
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
     owner = cv2.dilate(labels.astype(np.float32), disk).astype(np.int64)
@@ -328,7 +335,6 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     coef, rel = _irls(_quadric_basis(su, sv), inv, ss, n, tol, 4)
     share = np.bincount(ss, weights=np.abs(rel) < tol, minlength=n) / cnt
     scale = _robust_scale(rel, ss, n)
-    noise = sensor_noise(d, valid)
     good = (np.bincount(ss, minlength=n) >= min_support) & (share >= inliers) & (scale <= noise_ratio * noise)
     good[0] = False
     hv, hu = np.nonzero(m)
