@@ -35,6 +35,8 @@ PLANE_MIN_SUPPORT = 20
 PLANE_NOISE = 2.0
 #: The least relative noise :func:`sensor_noise` returns (noise-free depth, a renderer's: float rounding is not noise).
 NOISE_FLOOR = 1e-4
+#: :func:`noise_correlation` needs this many adjacent pairs with a residual (1, not white, below it).
+MIN_NOISE_PAIRS = 400
 #: Support: the segment's valid pixels within this many px of the holes.
 PLANE_REACH = 40
 #: A hole pixel takes its segment's plane only within this Mahalanobis distance of the support's pixel spread.
@@ -163,10 +165,11 @@ def sensor_noise(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
     return max(float(1.4826 * np.median(res) / np.sqrt(1.0 - 1.0 / win**2)), NOISE_FLOOR)
 
 
-def noise_correlation(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> float:
+def noise_correlation(depth: np.ndarray, valid: np.ndarray, win: int = 7, min_pairs: int = MIN_NOISE_PAIRS) -> float:
     """How much neighbouring pixels share the capture's depth noise: the correlation of the residuals of
     :func:`sensor_noise` (the inverse depth against its window's mean) of horizontally adjacent pixels, and of
-    vertically adjacent ones, whichever is larger (1 where no two adjacent pixels have one).
+    vertically adjacent ones, whichever is larger (1 where fewer than ``min_pairs`` adjacent pairs have one: a
+    small patch of a Kinect's plateaus can read as white, 13 % of the NYU frame's 48 x 48 crops do).
 
     White noise, each pixel's own, gives about -0.02 (the windows' shared mean); a Kinect's disparity
     quantised in plateaus, a surface's relief finer than the window, or the curvature of noise-free depth give
@@ -176,7 +179,7 @@ def noise_correlation(depth: np.ndarray, valid: np.ndarray, win: int = 7) -> flo
     out = []
     for a, b in ((res[:, :-1], res[:, 1:]), (res[:-1], res[1:])):
         ok = np.isfinite(a) & np.isfinite(b)
-        if ok.sum() > 1:
+        if ok.sum() >= min_pairs:
             x, y = a[ok].astype(np.float64), b[ok].astype(np.float64)
             out.append(float((x * y).mean() / max(np.sqrt((x * x).mean() * (y * y).mean()), 1e-300)))
     return max(out, default=1.0)

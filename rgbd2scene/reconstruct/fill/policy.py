@@ -50,7 +50,8 @@ docstring held until session 10).
    shows one (:func:`~rgbd2scene.reconstruct.fill.planes.quadric_fill`): per guided hole, a robust quadric in
    inverse depth fitted to the valid pixels within :data:`~rgbd2scene.reconstruct.fill.planes.QUADRIC_REACH` (10) px
    of it, taken on the planes' tests (residual within twice the noise, the pixel within the ring's spread, the
-   quadric within its depth range), blended in over the same ramp. A curved surface seen closely is a quadric to
+   quadric within its depth range), blended in over the same ramp, from the edge of the pixels it takes (its apex
+   beyond the ring's range keeps the fill below: the seam ramps too). A curved surface seen closely is a quadric to
    second order; a colour segment is not needed (on the tissue sample texture edges are not depth edges). It serves
    the smaller guided holes of smooth curved surfaces (the tissue sample's blobs: tuning rows up to 0.15 better) and
    of the TUM frame's; over a large hole nothing of low order fits: on the tissue sample's large holes even the
@@ -100,7 +101,8 @@ docstring held until session 10).
    of the benchmark, 0.56-0.79) a hole's pixels share them with its rim too, and the measured rim is the better
    data (smoothed on the TUM frame too, with a 4 px Gaussian: tuning split 0.677 -> 0.687, rows above 1.10
    5 -> 8, its specular rows up by 0.10-0.24); noise-free depth (CT, a renderer) is not smoothed either (its
-   residual is the curvature's, correlated). Not for the guided holes (2.): the wide holes' error is the fill's
+   residual is the curvature's, correlated). Not for the guided holes' colour-guided fills (2.; without RGB
+   their biharmonic fill is one of the smooth fills): the wide holes' error is the fill's
    model, not the rim's noise (tissue sample, wide ellipses: filled from the true rim their error is no
    smaller), and smoothing their rim moved those rows by chance, more up than down. Of the benchmark's captures
    only the tissue sample's rim is smoothed: tuning split 0.6773 -> 0.6672 (rows above 1.10 5 -> 5), held-out
@@ -421,9 +423,9 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     # colour segments whose valid depth shows a plane: the plane; then holes whose ring shows a quadric: the quadric
-    for name, where, model in (("planes", planar, plane_fill), ("quadrics", planar, curve_fill)):
+    for name, model in (("planes", plane_fill), ("quadrics", curve_fill)):
         if model is not None:
-            taken = _blend_in(out, model.result(), where)
+            taken = _blend_in(out, model.result(), planar, seamless=name == "quadrics")
             if taken:
                 counts[name] = taken
     for k in ways_used:  # the band's stretches that their strips gave another fill than the thin plate
@@ -437,12 +439,14 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     return out, counts, shadow
 
 
-def _blend_in(out: np.ndarray, model: np.ndarray, where: np.ndarray) -> int:
+def _blend_in(out: np.ndarray, model: np.ndarray, where: np.ndarray, seamless: bool = False) -> int:
     """``model``'s depth written into ``out`` on the pixels of ``where`` it holds, blended in linearly over the
     :data:`PLANE_RAMP` px next to the rim of ``where`` (there the fill in ``out`` is close to its data, the
-    model deeper in); returns how many pixels took it."""
+    model deeper in), or with ``seamless`` next to the edge of the pixels it holds (where the model holds only
+    part of a hole, the seam to the rest ramps too); returns how many pixels took it."""
     sel = where & np.isfinite(model)
-    w = np.minimum(cv2.distanceTransform(where.astype(np.uint8), cv2.DIST_L2, 3)[sel] / PLANE_RAMP, 1.0)
+    w = np.minimum(cv2.distanceTransform((sel if seamless else where).astype(np.uint8), cv2.DIST_L2, 3)[sel]
+                   / PLANE_RAMP, 1.0)
     out[sel] = w * model[sel] + (1 - w) * out[sel]
     return int(sel.sum())
 
