@@ -18,6 +18,7 @@ inverse depth fitted to the hole's ring of valid pixels, taken where the ring sh
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -185,13 +186,29 @@ def noise_correlation(depth: np.ndarray, valid: np.ndarray, win: int = 7, min_pa
     return max(out, default=1.0)
 
 
-def _box_round(mask: np.ndarray, reach: int) -> tuple[int, int, int, int]:
-    """The rows ``r0:r1`` and columns ``c0:c1`` of ``mask``'s bounding box widened by ``reach`` px, within the image
-    (``mask`` must have a pixel)."""
+class _Crop(NamedTuple):
+    box: tuple[slice, slice]  # the crop in the image
+    depth: np.ndarray
+    mask: np.ndarray
+    valid: np.ndarray  # valid depth outside the mask
+    noise: float  # sensor_noise on the crop
+
+
+def _crop_round(depth: np.ndarray, mask: np.ndarray, reach: int) -> _Crop | None:
+    """``depth`` and ``mask`` cropped to ``mask``'s bounding box widened by ``reach`` px (within the image), with
+    the noise measured on the crop; None where ``mask`` is empty or no window of the crop is all valid (no noise
+    to measure: no evidence of a model)."""
+    if not mask.any():
+        return None
     h, w = mask.shape
     rows = np.flatnonzero(mask.any(axis=1))
     cols = np.flatnonzero(mask.any(axis=0))
-    return max(rows[0] - reach, 0), min(rows[-1] + reach + 1, h), max(cols[0] - reach, 0), min(cols[-1] + reach + 1, w)
+    box = np.s_[max(rows[0] - reach, 0):min(rows[-1] + reach + 1, h),
+                max(cols[0] - reach, 0):min(cols[-1] + reach + 1, w)]
+    d, m = depth[box], mask[box]
+    valid = valid_depth(d) & ~m
+    noise = sensor_noise(d, valid)
+    return _Crop(box, d, m, valid, noise) if np.isfinite(noise) else None
 
 
 def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: float = PLANE_TOL,
@@ -226,21 +243,15 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     -------
     float32 (H, W): the plane's depth on the pixels of ``mask`` it fills, NaN elsewhere.
     """
-    h, w = depth.shape
-    out = np.full((h, w), np.nan, dtype=np.float32)
-    if not mask.any():
+    out = np.full(depth.shape, np.nan, dtype=np.float32)
+    crop = _crop_round(depth, mask, reach)
+    if crop is None:
         return out
-    r0, r1, c0, c1 = _box_round(mask, reach)
-    d = depth[r0:r1, c0:c1]
-    m = mask[r0:r1, c0:c1]
-    valid = valid_depth(d) & ~m
-    noise = sensor_noise(d, valid)
-    if not np.isfinite(noise):  # no window of valid depth to measure the noise on: no evidence of a plane
-        return out
+    box, d, m, valid, noise = crop
     if segments is None:
-        seg = colour_segments(rgb[r0:r1, c0:c1], scale=seg_scale)
+        seg = colour_segments(rgb[box], scale=seg_scale)
     else:
-        seg = segments[r0:r1, c0:c1].astype(np.int32)
+        seg = segments[box].astype(np.int32)
     n = int(seg.max()) + 1
     near = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 3) <= reach
     cut = np.zeros(n, dtype=bool)
@@ -269,7 +280,7 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     qv = (hv - hh / 2.0) / norm
     pred = planes.coef[hs, 0] + planes.coef[hs, 1] * qu + planes.coef[hs, 2] * qv
     ok = _within_support(su, sv, ss, inv, n, qu, qv, hs, pred, spread, margin)
-    out[r0 + hv[ok], c0 + hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
+    out[box][hv[ok], hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
     return out
 
 
@@ -303,17 +314,11 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     -------
     float32 (H, W): the quadric's depth on the pixels of ``mask`` it fills, NaN elsewhere.
     """
-    h, w = depth.shape
-    out = np.full((h, w), np.nan, dtype=np.float32)
-    if not mask.any():
+    out = np.full(depth.shape, np.nan, dtype=np.float32)
+    crop = _crop_round(depth, mask, reach)
+    if crop is None:
         return out
-    r0, r1, c0, c1 = _box_round(mask, reach)
-    d = depth[r0:r1, c0:c1]
-    m = mask[r0:r1, c0:c1]
-    valid = valid_depth(d) & ~m
-    noise = sensor_noise(d, valid)
-    if not np.isfinite(noise):  # no window of valid depth to measure the noise on: no evidence of a quadric
-        return out
+    box, d, m, valid, noise = crop
     labels, n = components(m)
     n += 1
     # each ring pixel to a hole within reach (the larger label where two rings meet)
@@ -347,7 +352,7 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     qu, qv = (hu - cu[hs]) / ext[hs], (hv - cv[hs]) / ext[hs]
     pred = (_quadric_basis(qu, qv) * coef[hs]).sum(axis=1)
     ok = _within_support(su, sv, ss, inv, n, qu, qv, hs, pred, spread, margin)
-    out[r0 + hv[ok], c0 + hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
+    out[box][hv[ok], hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
     return out
 
 
