@@ -137,6 +137,21 @@ def test_quadric_refused_where_the_ring_crosses_two_surfaces():
     assert not np.isfinite(quadric_fill(depth, hole)).any()
 
 
+def test_quadric_ring_pixels_belong_to_their_nearest_hole():
+    """A small hole 3 px above a large one: each ring pixel belongs to the hole nearer to it, so the small hole
+    keeps the valid depth round its own top and sides, enough support for its quadric (each pixel given to the
+    larger label, the large hole, left it only the rows above, too few)."""
+    _, _, _, truth = _ball(noise=0.0)
+    u, v = _grid()
+    small = (np.abs(u - 49) <= 1) & (v >= 30) & (v <= 32)
+    large = (u >= 30) & (u <= 70) & (v >= 36) & (v <= 80)
+    depth = np.where(small | large, np.nan, truth).astype(np.float32)
+    out = quadric_fill(depth, small | large)
+    for hole in (small, large):
+        assert np.isfinite(out[hole]).all()
+        assert (np.abs(out[hole] - truth[hole]) / truth[hole]).max() < 1e-3
+
+
 def test_auto_takes_the_quadric_for_a_wide_hole_in_a_curved_surface():
     from rgbd2scene.reconstruct.fill import fill_depth
 

@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+from scipy import ndimage as ndi
 
 from rgbd2scene.reconstruct.fill.holes import components, valid_depth
 
@@ -321,9 +322,9 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     box, d, m, valid, noise = crop
     labels, n = components(m)
     n += 1
-    # each ring pixel to a hole within reach (the larger label where two rings meet)
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
-    owner = cv2.dilate(labels.astype(np.float32), disk).astype(np.int64)
+    # each ring pixel to its nearest hole, within reach (where two rings meet, each keeps its own side)
+    distance, (near_v, near_u) = ndi.distance_transform_edt(~m, return_indices=True)
+    owner = np.where(distance <= reach, labels[near_v, near_u], 0).astype(np.int64)
     sup = valid & (owner > 0)
     sup[1::2, :] = False  # every other row and column, as the planes
     sup[:, 1::2] = False
