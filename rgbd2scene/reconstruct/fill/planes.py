@@ -345,7 +345,6 @@ def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_RE
     share = np.bincount(ss, weights=np.abs(rel) < tol, minlength=n) / cnt
     scale = _robust_scale(rel, ss, n)
     good = (np.bincount(ss, minlength=n) >= min_support) & (share >= inliers) & (scale <= noise_ratio * noise)
-    good[0] = False
     hv, hu = np.nonzero(m)
     hs = labels[m]
     take = good[hs]
