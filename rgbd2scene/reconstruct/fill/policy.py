@@ -64,7 +64,18 @@ docstring held until session 10).
    the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
    report split 0.705 -> 0.673, 18 -> 17 of 101. A highlight (a hole at least half of whose pixels are bright,
    unsaturated and brighter than the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`)
-   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.).
+   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.). **Noise-free
+   depth** (session 13, :func:`plain_holes`): where a quadric fits each 7x7 window of the capture to float rounding
+   (:func:`~rgbd2scene.reconstruct.fill.planes.noise_free`: depth from CT, a renderer; a plane's residual would count
+   a smooth surface's curvature as noise), a wide hole enclosed by valid depth whose ring no depth edge crosses (no
+   two neighbouring valid pixels within :data:`EDGE_REACH` px of it a step apart) takes the biharmonic fill alone,
+   as without RGB: on a smooth surface measured exactly the thin plate continues the exact rim to second order,
+   and colour adds only its texture (the tissue sample's organ from CT, ``tissue-ct``: there the mean of the
+   colour-guided fills had 1.3-1.6 times the biharmonic fill's error on the large holes). A hole open to the region
+   left unfilled (a notch in an organ's outline) keeps the mean (the thin plate extrapolates over the free edge),
+   and so does a hole whose ring a depth edge crosses (the colour may show where the surface breaks inside it).
+   Planes and quadrics are still fitted round every wide hole (the noise they are tested against is measured on
+   the crop round them) but taken only in the colour-guided ones. ``fill.md``, session 13 (helper ``ct13``).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
    smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
    invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
@@ -148,6 +159,7 @@ from rgbd2scene.reconstruct.fill.holes import (
 from rgbd2scene.reconstruct.fill.planes import (
     NOISE_FLOOR,
     noise_correlation,
+    noise_free,
     planar_fill,
     quadric_fill,
     sensor_noise,
@@ -375,15 +387,18 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         lit[0] = False
     edge = band & ~shadow
     across = stepped[labels] & rest
-    traits = HoleTraits(stepped, wide, lit)
+    plain = plain_holes(work, todo, labels, n, step) if rgb is not None else None
+    traits = HoleTraits(stepped, wide, lit, plain)
     # the thin plate of holes and band and the guided holes' fills (NYU colorization, colour-guided thin plate) are
     # the longest solves, and their inputs are known before any evidence: they start first, beside the evidence's
     # solves, where the rule's own choice (before the evidence) takes them (a guided hole's mean and the band's
-    # thin plate beside it; the thin plate for a wide hole without RGB); a result is used only if the evidence
-    # keeps its fill
-    guided = (wide & ~lit)[1:].any()
-    ahead = {"biharmonic": (rest | edge, across)} if guided and (edge.any() or rgb is None) else {}
-    if guided and rgb is not None:
+    # thin plate beside it; the thin plate for a wide hole without RGB or a plain one); a result is used only if the
+    # evidence keeps its fill
+    coloured = guided_holes(traits, rgb)
+    guided = coloured[1:].any()
+    uncoloured = (wide & ~lit & ~coloured)[1:].any()
+    ahead = {"biharmonic": (rest | edge, across)} if (wide & ~lit)[1:].any() and (edge.any() or uncoloured) else {}
+    if guided:
         ahead.update({b: (rest, across) for b in CANDIDATES[GUIDED]})
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
             ThreadPoolExecutor(max_workers=1) as side:
@@ -393,7 +408,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         early.update(_submit_fills(solves, out, rgb, {b: job for b, job in ahead.items() if b in SMOOTH}, smoothed))
         band_fills = (side.submit(_band_fills, solves, work, out, rgb, edge, band, border_width, smoothed)
                       if edge.any() else None)
-        planar = (rest & (wide & ~lit)[labels]) if guided and rgb is not None else None  # planes and quadrics
+        # planes and quadrics: fitted round every wide hole but the highlights (the noise they are tested against is
+        # measured on the crop round them: round the guided ones alone it may be a depth edge's), taken in the
+        # guided ones
+        planar = (rest & (wide & ~lit)[labels]) if guided else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
         curve_fill = None if planar is None else solves.submit(quadric_fill, work, planar)
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
@@ -425,7 +443,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     # colour segments whose valid depth shows a plane: the plane; then holes whose ring shows a quadric: the quadric
     for name, model in (("planes", plane_fill), ("quadrics", curve_fill)):
         if model is not None:
-            taken = _blend_in(out, model.result(), planar, seamless=name == "quadrics")
+            taken = _blend_in(out, model.result(), planar & coloured[labels], seamless=name == "quadrics")
             if taken:
                 counts[name] = taken
     for k in ways_used:  # the band's stretches that their strips gave another fill than the thin plate
@@ -497,6 +515,9 @@ PLANE_RAMP = 8.0
 #: The colour segmentation of step 2's planes runs at 1 / this resolution (at 1/2: about 0.04 s more CPU on the TUM
 #: frame, tuning 0.732, 8 rows above 1.10, held-out 0.766, 15; at 1/3 0.731, 10 and 0.762, 15).
 PLANE_SCALE = 3
+#: A depth edge within this many px of a hole keeps its colour guidance on noise-free depth (:func:`plain_holes`; the
+#: quadrics' ring).
+EDGE_REACH = 10
 #: ``auto``'s NYU colorization graph: the known pixels within this many px of the holes (its docstring).
 NYU_REACH = 16
 #: Copies lie this many px away from any invalid pixel: a copy must be enclosed by valid depth, as the hole is.
@@ -521,11 +542,13 @@ def _smoothed_rim(work: np.ndarray, out: np.ndarray, mask: np.ndarray) -> np.nda
 @dataclass
 class HoleTraits:
     """Per hole label (index 0: no hole): bridges a depth step; wider than ``small_radius`` or stepped;
-    a specular highlight."""
+    a specular highlight; filled without colour guidance on noise-free depth (:func:`plain_holes`; None: no hole
+    is)."""
 
     stepped: np.ndarray
     wide: np.ndarray
     lit: np.ndarray
+    plain: np.ndarray | None = None
 
 
 def _base_fill(name: str, depth, rgb, mask, across) -> np.ndarray:
@@ -595,6 +618,47 @@ def _copy_errors(depth, labels, traits: HoleTraits, clearance: int, coverage: fl
     return err, npx
 
 
+def plain_holes(depth: np.ndarray, todo: np.ndarray, labels: np.ndarray, n: int, step: float,
+                reach: int = EDGE_REACH) -> np.ndarray:
+    """Per hole label (index 0: none), whether the hole is filled by the thin plate alone, its colour set aside
+    (module docstring, 2.): the capture is noise-free (:func:`~rgbd2scene.reconstruct.fill.planes.noise_free`),
+    the hole is enclosed by valid depth (it touches no invalid pixel outside ``todo``, the pixels to fill: a hole
+    open to the region outside the surface has a free edge there, over which a thin plate extrapolates), and no
+    depth edge crosses its ring (two 4-adjacent valid pixels, one within ``reach`` px of the hole and nearer it
+    than any other hole, whose inverse depths differ by more than ``step``: where the surface breaks, the colour
+    may show where it breaks inside the hole)."""
+    valid = valid_depth(depth)
+    plain = np.zeros(n + 1, dtype=bool)
+    if not noise_free(depth, valid):
+        return plain
+    plain[1:] = True
+    beyond = ndi.binary_dilation(~valid & ~todo, structure=np.ones((3, 3), dtype=bool))
+    plain[labels[beyond]] = False
+    inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), np.nan)
+    edge = np.zeros(depth.shape, dtype=bool)
+    for axis in (0, 1):  # both pixels of each jump between neighbours along this axis
+        a, b = np.swapaxes(inv, 0, axis)[:-1], np.swapaxes(inv, 0, axis)[1:]
+        with np.errstate(invalid="ignore"):
+            jump = np.abs(a - b) > step * np.minimum(a, b)
+        e = np.swapaxes(edge, 0, axis)
+        e[:-1] |= jump
+        e[1:] |= jump
+    distance, (near_v, near_u) = ndi.distance_transform_edt(labels == 0, return_indices=True)
+    plain[labels[near_v, near_u][edge & (distance <= reach)]] = False
+    plain[0] = False
+    return plain
+
+
+def guided_holes(traits: HoleTraits, rgb: np.ndarray | None) -> np.ndarray:
+    """Per hole label, whether it is colour-guided (module docstring, 2.): wide or across a step, not a
+    highlight, with RGB, and not a plain hole of noise-free depth (:func:`plain_holes`)."""
+    guided = traits.wide & ~traits.lit & (rgb is not None)
+    if traits.plain is not None:
+        guided &= ~traits.plain
+    guided[0] = False
+    return guided
+
+
 def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, traits: HoleTraits,
                     copies: int = 3, pool: Executor | None = None) -> np.ndarray:
     """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
@@ -625,11 +689,10 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     n = traits.wide.size - 1
     smooth = ~traits.wide | traits.lit
     smooth[0] = False
-    guided = ~smooth & (rgb is not None)
-    guided[0] = False
+    guided = guided_holes(traits, rgb)
     choice = np.full(n + 1, NAMES.index("harmonic"))
     choice[guided] = NAMES.index(GUIDED)
-    choice[traits.wide & (rgb is None)] = NAMES.index("biharmonic")
+    choice[1:][~smooth[1:] & ~guided[1:]] = NAMES.index("biharmonic")  # wide, neither lit nor colour-guided
     if not smooth.any():  # the copies only choose the smooth fill
         return choice
     smooth_only = np.where(smooth[labels], labels, 0)  # the other holes' copies would take room and solve time
