@@ -71,11 +71,13 @@ docstring held until session 10).
    two neighbouring valid pixels within :data:`EDGE_REACH` px of it a step apart) takes the biharmonic fill alone,
    as without RGB: on a smooth surface measured exactly the thin plate continues the exact rim to second order,
    and colour adds only its texture (the tissue sample's organ from CT, ``tissue-ct``: there the mean of the
-   colour-guided fills had 1.3-1.6 times the biharmonic fill's error on the large holes). A hole open to the region
+   colour-guided fills had up to 1.6 times the biharmonic fill's error on the large holes). A hole open to the region
    left unfilled (a notch in an organ's outline) keeps the mean (the thin plate extrapolates over the free edge),
    and so does a hole whose ring a depth edge crosses (the colour may show where the surface breaks inside it).
    Planes and quadrics are still fitted round every wide hole (the noise they are tested against is measured on
-   the crop round them) but taken only in the colour-guided ones. ``fill.md``, session 13 (helper ``ct13``).
+   the crop round them) but taken only in the colour-guided ones. Tuning split 0.6639 -> 0.6600 (rows above 1.10
+   58 -> 53 of 260), held-out 0.6560 -> 0.6490 (55 -> 49 of 244), every row but tissue-ct's bit-identical
+   (``fill.md``, session 13, helper ``ct13``).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
    smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
    invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
