@@ -88,6 +88,25 @@ def test_no_extrapolation_far_beyond_the_support():
     assert np.isfinite(out[hole & (u > 84)]).mean() > 0.9  # the right plane as before
 
 
+def test_a_plane_is_refused_where_its_segments_nearest_depth_is_off_it():
+    """A box of the wall's colour in front of it, hidden but for a 3 px rim (as a transplanted mask hides most of
+    a surface in the benchmark's Redwood rows): one colour segment, whose support is mostly the wall, so its
+    plane passes the inlier test; the hole's pixels beside the box's rim lie on the box, not the wall, and the
+    segment's valid pixel nearest each of them (the rim's) says so. The wall round the box keeps the plane."""
+    u, v = _grid()
+    box = (u >= 50) & (u < 90) & (v >= 40) & (v < 80)
+    truth = np.where(box, 1.5, 2.0).astype(np.float32)
+    depth = (truth * (1 + 0.001 * np.random.default_rng(2).standard_normal(truth.shape))).astype(np.float32)
+    rgb = np.full((H, W, 3), (120, 110, 100), dtype=np.uint8)
+    inner = (u >= 53) & (u < 87) & (v >= 43) & (v < 77)
+    hole = inner | ((u >= 92) & (u < 110) & (v >= 45) & (v < 75))  # the box's inside, and a patch of wall
+    depth[hole] = np.nan
+    out = planar_fill(depth, rgb, hole, segments=np.zeros((H, W), dtype=np.int32))
+    assert np.isfinite(out[hole & ~box]).mean() > 0.95
+    assert np.abs(out[hole & ~box] - 2.0).max() < 0.02
+    assert not np.isfinite(out[inner]).any()  # without the rim test the wall's 2.0 m went in on the box
+
+
 def test_nothing_to_fill():
     depth, rgb, hole, _ = _two_planes()
     assert not np.isfinite(planar_fill(depth, rgb, np.zeros_like(hole))).any()

@@ -8,8 +8,9 @@ robustly to the segment's valid pixels near the holes (:func:`fit_segment_planes
 take the plane where the segment's own valid depth says it is planar (:func:`planar_fill`): most of its
 support on the plane within a small relative residual, the residual's scale near the capture's own noise
 (:func:`sensor_noise`: a curved surface's shows above it), enough support, the hole pixels within the
-support's spread (an interpolation, not an extrapolation far beyond it), and the plane's depth at them
-within the support's range. Elsewhere nothing is filled (NaN): the caller keeps its own fill there.
+support's spread (an interpolation, not an extrapolation far beyond it), the plane's depth at them
+within the support's range, and the segment's valid pixel nearest each of them on the plane. Elsewhere
+nothing is filled (NaN): the caller keeps its own fill there.
 
 :func:`quadric_fill` applies the same evidence one order up, per hole rather than per segment: a quadric in
 inverse depth fitted to the hole's ring of valid pixels, taken where the ring shows it within the noise.
@@ -247,8 +248,10 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     crop: a curved surface fails this where its curvature shows above the noise, as on the tissue sample
     against a Kinect's planar walls; where no window of the crop is all valid, so that there is no noise to
     measure, no segment passes), the hole pixel within Mahalanobis distance ``spread`` of the support
-    pixels' mean and covariance in the image (no extrapolation far beyond the support), and the plane's
-    inverse depth there within the support's range widened by ``margin`` of it on either side.
+    pixels' mean and covariance in the image (no extrapolation far beyond the support), the plane's
+    inverse depth there within the support's range widened by ``margin`` of it on either side, and the
+    segment's valid pixel nearest the hole pixel on the plane, within three times the robust scale of the
+    segment's residual and at least ``tol`` (:func:`_nearest_on_plane`).
 
     Parameters
     ----------
@@ -301,8 +304,38 @@ def planar_fill(depth: np.ndarray, rgb: np.ndarray, mask: np.ndarray, *, tol: fl
     qv = (hv - hh / 2.0) / norm
     pred = planes.coef[hs, 0] + planes.coef[hs, 1] * qu + planes.coef[hs, 2] * qv
     ok = _within_support(su, sv, ss, inv, n, qu, qv, hs, pred, spread, margin)
+    # the nearest pixel on the plane within its segment's own scatter (3 robust sigmas), at least tol
+    ok[ok] = _nearest_on_plane(d, valid & near, seg, planes.coef, norm, hv[ok], hu[ok], hs[ok],
+                               np.maximum(tol, 3 * planes.scale))
     out[box][hv[ok], hu[ok]] = (1.0 / pred[ok]).astype(np.float32)
     return out
+
+
+def _nearest_on_plane(d, valid, seg, coef, norm, hv, hu, hs, bound) -> np.ndarray:
+    """Per hole pixel (``hv, hu`` of the crop ``d``, in segment ``hs`` of ``seg``): the segment's ``valid`` pixel
+    nearest it lies on the segment's plane (``coef``, in coordinates centred on the crop and divided by
+    ``norm``): its relative residual within the segment's ``bound``.
+
+    The inlier test passes a segment with a fifth of its support off its plane; where a hole hides most of a
+    surface that the segmentation merged into the segment (a box in front of a wall of its colour, a transplanted
+    mask's hole across a depth step), the plane is the other surface's, and the hole's pixels beside what
+    is left of that surface took it. The depth measured nearest a hole pixel, in its own segment, is the
+    evidence of which surface it lies on."""
+    hh, ww = d.shape
+    keep = np.zeros(hv.size, dtype=bool)
+    boxes = ndi.find_objects(seg + 1)
+    for s in np.unique(hs):
+        box = boxes[s]
+        src = valid[box] & (seg[box] == s)
+        if not src.any():
+            continue
+        _, (iy, ix) = ndi.distance_transform_edt(~src, return_indices=True)
+        pick = hs == s
+        ny = iy[hv[pick] - box[0].start, hu[pick] - box[1].start] + box[0].start
+        nx = ix[hv[pick] - box[0].start, hu[pick] - box[1].start] + box[1].start
+        plane = coef[s, 0] + coef[s, 1] * (nx - ww / 2.0) / norm + coef[s, 2] * (ny - hh / 2.0) / norm
+        keep[pick] = np.abs(plane * d[ny, nx] - 1.0) < bound[s]
+    return keep
 
 
 def quadric_fill(depth: np.ndarray, mask: np.ndarray, *, reach: int = QUADRIC_REACH, tol: float = PLANE_TOL,

@@ -43,9 +43,13 @@ docstring held until session 10).
    (:func:`~rgbd2scene.reconstruct.fill.planes.planar_fill`): the colour image round the guided holes is
    cut into segments (Felzenszwalb, at 1 / :data:`PLANE_SCALE` resolution), each segment a hole cuts gets
    a robust plane in inverse depth from its valid pixels within 40 px, and its hole pixels take the plane
-   where the residual is within twice the capture's own noise, the pixel within the support's spread and
-   the plane within its depth range; within :data:`PLANE_RAMP` px of the rim the plane is blended in from
-   the fill above, which is close to its data there. Walls, floors and desk tops pass; the tissue sample's
+   where the residual is within twice the capture's own noise, the pixel within the support's spread, the
+   plane within its depth range and the segment's valid pixel nearest the hole pixel on the plane (within
+   three robust sigmas of the segment's residual: where a hole hides most of a surface the segmentation
+   merged into a wall's segment, the wall's plane went in on that surface; session 13, ``fill.md``: tuning
+   split 0.6639 -> 0.6593, rows above 1.10 58 -> 54 of 260; held-out 0.6560 -> 0.6530, 55 -> 52); within
+   :data:`PLANE_RAMP` px of the rim the plane is blended in from the fill above, which is close to its data
+   there. Walls, floors and desk tops pass; the tissue sample's
    curved surface mostly does not. **Quadrics** then replace that fill (planes included) where a hole's own ring
    shows one (:func:`~rgbd2scene.reconstruct.fill.planes.quadric_fill`): per guided hole, a robust quadric in
    inverse depth fitted to the valid pixels within :data:`~rgbd2scene.reconstruct.fill.planes.QUADRIC_REACH` (10) px
