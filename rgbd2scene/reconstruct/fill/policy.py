@@ -62,7 +62,11 @@ docstring held until session 10).
    quadric fitted to the hidden truth itself is worse than the best plain fill on 15 of 16 rows, so the ring test
    refuses them (residual 4.5-11 times the noise on their rings) and their misses stay (``fill.md``, session 12).
    Session 12: tuning split 0.677 -> 0.670, rows above 1.10 5 -> 5; held-out 0.705 -> 0.700, 6 -> 6. Without RGB:
-   the biharmonic fill, clipped to the rim's range where the hole bridges a step. Session 10 (planes and the thin
+   the biharmonic fill, clipped to the rim's range where the hole bridges a step; where that clip pins more than
+   :data:`PINNED_SHARE` of a hole wider than ``small_radius`` to its rim's nearest or farthest depth, the thin plate
+   has carried the rim's slopes out of its range (the slopes do not continue across the hole), and the hole takes the
+   mean of it and the harmonic fill, which levels off within the range (session 13: the NYU frame under a tuning
+   ellipse over the chairs, 72 % pinned: 2.16 -> 1.17 times the best reference). Session 10 (planes and the thin
    plate together, against session 9's per-hole choice among the mean of the NYU colorization and the biharmonic
    fill, each alone, by copies of the hole laid on valid depth, whose evidence proved no better than always taking
    the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
@@ -183,6 +187,7 @@ from rgbd2scene.reconstruct.fill.solvers import (
     fill_inpaint,
     fill_nyu_colorization,
     fill_row_background,
+    rim_range,
     smooth_rim,
 )
 
@@ -385,7 +390,9 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     stepped[0] = False
     wide = stepped.copy()
     inscribed = cv2.distanceTransform(rest.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    wide[labels[inscribed > small_radius]] = True
+    broad = np.zeros(n + 1, dtype=bool)
+    broad[labels[inscribed > small_radius]] = True
+    wide |= broad
     lit = np.zeros(n + 1, dtype=bool)
     if shine is not None:
         pixels = np.bincount(labels.ravel(), minlength=n + 1)
@@ -439,6 +446,8 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
                 early.pop(name).cancel()
         early.update(_submit_fills(solves, out, rgb, _costly_first(jobs), smoothed))
         fills = {name: future.result() for name, future in {**early, **band_jobs}.items()}
+    # without RGB, the stepped holes whose thin plate its clip pins to the rim's range: levelled by the membrane
+    pinned = _pinned(fills["biharmonic"], out, across, broad[labels]) if rgb is None and across.any() else None
     if joint:
         out[edge] = fills["biharmonic"][edge]
     for k in chosen:
@@ -446,6 +455,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
+    if pinned is not None and pinned.any():
+        membrane = fills["harmonic"] if "harmonic" in fills else _base_fill("harmonic", out, None, pinned, across)
+        out[pinned] = (out[pinned] + membrane[pinned]) / 2
+        counts["harmonic"] = counts.get("harmonic", 0) + int(pinned.sum())
     # colour segments whose valid depth shows a plane: the plane; then holes whose ring shows a quadric: the quadric
     for name, model in (("planes", plane_fill), ("quadrics", curve_fill)):
         if model is not None:
@@ -461,6 +474,24 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts, shadow
+
+
+#: Without RGB, a stepped hole whose thin plate lies on its rim's depth bound over more than this share of its pixels
+#: takes the mean of it and the harmonic fill (module docstring, 2.).
+PINNED_SHARE = 0.25
+
+
+def _pinned(fill: np.ndarray, depth: np.ndarray, across: np.ndarray, broad: np.ndarray) -> np.ndarray:
+    """The pixels of the ``broad`` holes of ``across`` whose ``fill`` (clipped to the rim's range,
+    :func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`, against ``depth``) lies on the rim's least or greatest
+    depth over more than :data:`PINNED_SHARE` of their pixels."""
+    labels, lo, hi = rim_range(depth, across)
+    labels[~broad] = 0
+    bound = across & ((fill <= lo[labels]) | (fill >= hi[labels]))
+    pixels = np.bincount(labels.ravel(), minlength=lo.size)
+    share = np.bincount(labels[bound], minlength=lo.size) / np.maximum(pixels, 1)
+    share[0] = 0.0
+    return across & (share[labels] > PINNED_SHARE)
 
 
 def _blend_in(out: np.ndarray, model: np.ndarray, where: np.ndarray, seamless: bool = False) -> int:

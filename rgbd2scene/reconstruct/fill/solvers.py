@@ -714,18 +714,26 @@ def clip_to_rim(filled: np.ndarray, depth: np.ndarray, mask: np.ndarray, width: 
     float32 (H, W): ``filled`` with its mask pixels clipped (a hole without a valid rim unchanged).
     """
     out = np.array(filled, dtype=np.float32, copy=True)
-    labels, n = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
-    if n == 0:
-        return out
-    dist, (rows, cols) = ndi.distance_transform_edt(labels == 0, return_indices=True)
-    rim = (dist <= width) & valid_depth(depth) & ~mask
-    owner = labels[rows[rim], cols[rim]]
-    lo, hi = np.full(n + 1, np.inf), np.full(n + 1, -np.inf)
-    np.minimum.at(lo, owner, depth[rim])
-    np.maximum.at(hi, owner, depth[rim])
+    labels, lo, hi = rim_range(depth, mask, width)
     sel = mask & np.isfinite(out)
     out[sel] = np.clip(out[sel], lo[labels[sel]], hi[labels[sel]])
     return out
+
+
+def rim_range(depth: np.ndarray, mask: np.ndarray, width: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The holes of ``mask`` (8-connected components: int (H, W), 0 = none) and each one's rim's least and
+    greatest depth (float (n + 1,), inf and -inf for a hole without a valid rim): the valid pixels of
+    ``depth`` within ``width`` px of it (:func:`clip_to_rim`)."""
+    labels, n = ndi.label(mask, structure=np.ones((3, 3), dtype=bool))
+    lo, hi = np.full(n + 1, np.inf), np.full(n + 1, -np.inf)
+    if n == 0:
+        return labels, lo, hi
+    dist, (rows, cols) = ndi.distance_transform_edt(labels == 0, return_indices=True)
+    rim = (dist <= width) & valid_depth(depth) & ~mask
+    owner = labels[rows[rim], cols[rim]]
+    np.minimum.at(lo, owner, depth[rim])
+    np.maximum.at(hi, owner, depth[rim])
+    return labels, lo, hi
 
 
 def clip_to_surround(filled: np.ndarray, depth: np.ndarray, mask: np.ndarray, radius: int,
