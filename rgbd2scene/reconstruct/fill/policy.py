@@ -16,7 +16,9 @@ Every rule decides from the capture itself. The figures are the benchmark's
 (``benchmarks/bench_fill.py``: auto's all-pixel error over the best of the biharmonic, harmonic, NYU
 colorization and the project's colorization fills, geometric mean over the rows); what was tried and not
 kept, with its figures, is in ``benchmarks/results/fill.md`` (its notes, and the design record that this
-docstring held until session 10).
+docstring held until session 10). Until session 12 the tuning and held-out splits held the TUM frame and the
+tissue sample only (77 rows each); from session 13 on they hold every capture (260 and 244 rows), and figures
+before then are on the narrower splits.
 
 1. **Occlusion shadows** (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_pixels`): a horizontal run of
    hole pixels across a depth step, no wider than the shadow the sensor casts there, fx * b * (1/z_near -
