@@ -426,6 +426,28 @@ def test_colour_tells_an_outline_bitten_by_a_hole_from_the_background():
     assert np.isnan(res.depth[~ndimage.binary_dilation(organ, iterations=2)]).all()
 
 
+def test_colour_recovers_a_notch_bitten_deep_past_its_chord():
+    """A hole across the dome's side bites deeper past its chord than the colour camera blends colours: the
+    colour test reaches the open region's pixels up to the shorter side / 30 from the rest, and takes the
+    open region's colour beyond that (beside the surface a notch's pixels are the surface's colour), so the
+    whole bite is filled (a 2 px reach, the background's colour taken 2 px out, left 16 of its pixels open)
+    while the drape stays empty."""
+    truth, organ = dome_scene()
+    rng = np.random.default_rng(3)
+    rgb = np.where(organ[..., None], [180, 80, 80], [40, 90, 140]) + rng.integers(-15, 16, (H, W, 3))
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    bite = disc(60, 128, 14) & organ
+    depth = truth.copy()
+    depth[bite] = np.nan
+    assert (classify_holes(depth, border_width=12, min_radius=6).open & bite).sum() >= 50
+    holes = classify_holes(depth, border_width=12, min_radius=6, rgb=rgb)
+    assert not (holes.open & bite).any()
+    drape = ~ndimage.binary_dilation(organ, iterations=2)
+    assert not (holes.fill & drape).any()
+    res = fill_depth(depth, rgb, "auto", sensor=get_sensor("none"))
+    assert np.isfinite(res.depth[bite]).all() and np.isnan(res.depth[drape]).all()
+
+
 def test_hole_beyond_the_range_stays_empty():
     """A tunnel: the surface recedes into the hole at its centre, the farthest depth in the image."""
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
