@@ -407,14 +407,19 @@ def test_open_background_stays_empty_notches_and_enclosed_holes_fill():
     assert not background[rows, cols].any()
 
 
+def dome_colour(organ: np.ndarray) -> np.ndarray:
+    """The registered colour of :func:`dome_scene`: a red organ on a blue drape, with a little noise."""
+    rng = np.random.default_rng(3)
+    rgb = np.where(organ[..., None], [180, 80, 80], [40, 90, 140]) + rng.integers(-15, 16, (H, W, 3))
+    return np.clip(rgb, 0, 255).astype(np.uint8)
+
+
 def test_colour_tells_an_outline_bitten_by_a_hole_from_the_background():
     """A hole across the bulging top of a dome on nothing (CT-like depth): the outline's shape alone
     leaves the bite's pixels near and beyond the chord of the bite open (24 of 209), but in the registered
     colour they are the dome's (red on a blue drape), so they are filled; the drape stays empty."""
     truth, organ = dome_scene()
-    rng = np.random.default_rng(3)
-    rgb = np.where(organ[..., None], [180, 80, 80], [40, 90, 140]) + rng.integers(-15, 16, (H, W, 3))
-    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    rgb = dome_colour(organ)
     bite = disc(22, 80, 12) & organ
     depth = truth.copy()
     depth[bite] = np.nan
@@ -433,9 +438,7 @@ def test_colour_recovers_a_notch_bitten_deep_past_its_chord():
     whole bite is filled (a 2 px reach, the background's colour taken 2 px out, left 16 of its pixels open)
     while the drape stays empty."""
     truth, organ = dome_scene()
-    rng = np.random.default_rng(3)
-    rgb = np.where(organ[..., None], [180, 80, 80], [40, 90, 140]) + rng.integers(-15, 16, (H, W, 3))
-    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    rgb = dome_colour(organ)
     bite = disc(60, 128, 14) & organ
     depth = truth.copy()
     depth[bite] = np.nan
