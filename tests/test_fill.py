@@ -407,22 +407,24 @@ def test_open_background_stays_empty_notches_and_enclosed_holes_fill():
     assert not background[rows, cols].any()
 
 
-def dome_colour(organ: np.ndarray) -> np.ndarray:
-    """The registered colour of :func:`dome_scene`: a red organ on a blue drape, with a little noise."""
+def bitten_dome(row: int, col: int, radius: int):
+    """:func:`dome_scene` with its registered colour (a red organ on a blue drape, a little noise) and a disc of
+    the organ hidden: truth, organ, rgb, the hidden pixels and the input depth."""
+    truth, organ = dome_scene()
     rng = np.random.default_rng(3)
     rgb = np.where(organ[..., None], [180, 80, 80], [40, 90, 140]) + rng.integers(-15, 16, (H, W, 3))
-    return np.clip(rgb, 0, 255).astype(np.uint8)
+    rgb = np.clip(rgb, 0, 255).astype(np.uint8)
+    bite = disc(row, col, radius) & organ
+    depth = truth.copy()
+    depth[bite] = np.nan
+    return truth, organ, rgb, bite, depth
 
 
 def test_colour_tells_an_outline_bitten_by_a_hole_from_the_background():
     """A hole across the bulging top of a dome on nothing (CT-like depth): the outline's shape alone
     leaves the bite's pixels near and beyond the chord of the bite open (24 of 209), but in the registered
     colour they are the dome's (red on a blue drape), so they are filled; the drape stays empty."""
-    truth, organ = dome_scene()
-    rgb = dome_colour(organ)
-    bite = disc(22, 80, 12) & organ
-    depth = truth.copy()
-    depth[bite] = np.nan
+    truth, organ, rgb, bite, depth = bitten_dome(22, 80, 12)
     assert (classify_holes(depth, border_width=12, min_radius=6).open & bite).sum() >= 20
     res = fill_depth(depth, rgb, "auto", sensor=get_sensor("none"))
     assert np.isfinite(res.depth[bite]).all()
@@ -437,11 +439,7 @@ def test_colour_recovers_a_notch_bitten_deep_past_its_chord():
     open region's colour beyond that (beside the surface a notch's pixels are the surface's colour), so the
     whole bite is filled (a 2 px reach, the background's colour taken 2 px out, left 16 of its pixels open)
     while the drape stays empty."""
-    truth, organ = dome_scene()
-    rgb = dome_colour(organ)
-    bite = disc(60, 128, 14) & organ
-    depth = truth.copy()
-    depth[bite] = np.nan
+    truth, organ, rgb, bite, depth = bitten_dome(60, 128, 14)
     assert (classify_holes(depth, border_width=12, min_radius=6).open & bite).sum() >= 50
     holes = classify_holes(depth, border_width=12, min_radius=6, rgb=rgb)
     assert not (holes.open & bite).any()
