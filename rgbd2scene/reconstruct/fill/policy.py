@@ -89,12 +89,20 @@ before then are on the narrower splits.
    58 -> 53 of 260), held-out 0.6560 -> 0.6490 (55 -> 49 of 244), every row but tissue-ct's bit-identical
    (``fill.md``, session 13, helper ``ct13``).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
-   smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
-   invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
-   fits at all). Harmonic averages a sensor's noise; biharmonic is exact on smooth noise-free depth (CT, a
-   renderer), so the depth decides rather than the sensor setting. Once per image: the noise is the
-   sensor's, the same across the image (per hole did worse). Under white noise both fill from the smoothed
-   rim (5.).
+   smaller error on copies of the holes (whole copies lying :data:`COPY_CLEARANCE` px from any invalid pixel;
+   where no hole has one, copies lying 60 % on pixels 2 px from any invalid one). Harmonic averages a
+   sensor's noise; biharmonic is exact on smooth noise-free depth (CT, a renderer), so the depth decides
+   rather than the sensor setting. The narrow holes take one fill, the one all copies favour pooled
+   (harmonic where none fits at all): their error is the noise's, the sensor's, the same across the image
+   (session 9: per hole did worse on the TUM frame and the tissue sample). A wide highlight (wider than
+   ``small_radius`` or across a step) takes the fill its own copies favour, and the biharmonic fill where it
+   has no copy, as a wide hole neither lit nor colour-guided: over a wide hole whether a membrane or a thin
+   plate fits is its surface's, and pooled, other holes' copies decided it (session 14, ``fill.md``, helper
+   ``spec14``: SUN's two ceiling lamps, one lamp's copies across a depth edge erring 0.39-0.49 m and outweighing
+   the other's 0.08-0.09 m, which favour the membrane that wins on both; Redwood's sunlit patch, 13766 px
+   without a copy, 30.1 mm harmonic as its small holes' copies chose, 23.4 mm biharmonic; tuning split 0.6434 ->
+   0.6393, rows above 1.10 47 -> 44, only specular rows moved). Under white noise both fill from the smoothed rim
+   (5.).
 4. **The border band** (shadows in it excepted), per stretch of :data:`BAND_STRETCH` px along its edge
    (:func:`choose_band`): the strip of valid depth just inside each stretch (:func:`band_strips`) is hidden,
    band and strips are filled from the rest with the biharmonic, harmonic and NYU colorization fills (at 1 /
@@ -546,7 +554,7 @@ NAMES = list(CANDIDATES)
 #: The fill of a colour-guided hole (module docstring, 2.), then planes where the capture shows them: no choice by
 #: copies (choosing among it, the biharmonic fill and the NYU colorization did worse, ``fill.md`` session 10).
 GUIDED = "nyu_colorization+guided_thin_plate"
-#: What narrow holes and highlights choose between on their copies, once per image (module docstring, 3.).
+#: What narrow holes and highlights choose between on copies (module docstring, 3.).
 SMOOTH = ("harmonic", "biharmonic")
 #: Within this many px of a guided hole's rim its plane or quadric is blended in linearly from the hole's other fill
 #: (step 2).
@@ -704,11 +712,12 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
 
     Copies of each narrow hole and highlight are laid onto valid depth nearby, each wholly on pixels at least
     :data:`COPY_CLEARANCE` px from any invalid one (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`),
-    and filled with the candidates: all copies at once, one solve per base fill. Narrow holes and
-    highlights take the smooth fill (harmonic or biharmonic) with the least error over all their copies
-    pooled; where none of them has a whole copy, over copies that lie 60 % on pixels 2 px from any
-    invalid one (a thin ring round a hole beyond range has no room for a whole copy); harmonic where
-    none fits at all. A colour-guided hole (wide or across a step, not a highlight, with RGB) takes
+    and filled with the candidates: all copies at once, one solve per base fill. The narrow holes take the
+    smooth fill (harmonic or biharmonic) with the least error over all their copies pooled; where none of
+    them has a whole copy, over copies that lie 60 % on pixels 2 px from any invalid one (a thin ring round a
+    hole beyond range has no room for a whole copy); harmonic where none fits at all. A wide highlight takes
+    the smooth fill with the least error over its own copies, the biharmonic fill where it has none. A
+    colour-guided hole (wide or across a step, not a highlight, with RGB) takes
     :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate); without RGB, the
     biharmonic fill.
 
@@ -739,9 +748,16 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     if not (smooth & (npx > 0)).any():
         err, npx = _copy_errors(depth, smooth_only, traits, 2, 0.6, copies, pool)
     scored = smooth & (npx > 0)
-    if scored.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
+    if scored.any():  # narrow holes: one smooth fill for all, which all copies favour pooled: noise is the sensor's
         best = int((err[scored] * npx[scored, None]).sum(axis=0).argmin())
         choice[smooth] = NAMES.index(SMOOTH[best])
+    # a wide highlight: what its own copies favour (whether a membrane or a thin plate fits a wide hole is its
+    # surface's, not the noise's: pooled, other holes' copies decide it), the thin plate where it has no copy, as a
+    # wide hole neither lit nor colour-guided
+    wide_lit = smooth & traits.wide
+    own = np.array([NAMES.index(name) for name in SMOOTH])[err.argmin(axis=1)]
+    choice[wide_lit & (npx > 0)] = own[wide_lit & (npx > 0)]
+    choice[wide_lit & (npx == 0)] = NAMES.index("biharmonic")
     return choice
 
 
