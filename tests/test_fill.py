@@ -26,7 +26,7 @@ from rgbd2scene.reconstruct.fill import (
     shadow_pixels,
     step_runs,
 )
-from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
+from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies, lights_in_holes
 from rgbd2scene.reconstruct.fill.planes import NOISE_FLOOR, noise_correlation, noise_free, sensor_noise
 from rgbd2scene.reconstruct.fill.policy import (
     BAND_STRETCH,
@@ -952,6 +952,27 @@ def test_highlight_pixels_are_bright_unsaturated_and_brighter_than_their_rim():
     assert not highlight_pixels(red, spot).any()
     assert not highlight_pixels(rgb, spot)[~spot].any()
 
+
+def test_a_light_inside_a_wide_hole_takes_its_thin_plate_not_the_colour_guided_fill():
+    """A lamp on a dark ceiling, hidden with a wider hole beside it: its pixels take the hole's thin plate (its
+    colour is the light's). The same lamp in an overexposed region (its surround bright too) is no light on a
+    darker surface and stays colour-guided."""
+    noisy = smooth_surface() * (1 + 0.003 * np.random.default_rng(2).standard_normal((H, W))).astype(np.float32)
+    hole = disc(60, 80, 20)
+    lamp = disc(60, 96, 4) & hole  # touching the hole's rim from inside
+    valid = ~hole
+    for surround, expected in ((70, lamp), (230, np.zeros((H, W), bool))):
+        rgb = np.full((H, W, 3), surround, np.uint8)
+        rgb[lamp] = 255
+        shine = highlight_pixels(rgb, hole)
+        assert shine[lamp].all()
+        assert (lights_in_holes(shine, hole, rgb, valid) == expected).all()
+    rgb = np.full((H, W, 3), 70, np.uint8)
+    rgb[..., 1] = (70 + 40 * np.sin(np.arange(W) / 6.0)).astype(np.uint8)[None, :]  # texture for the colour fills
+    rgb[lamp] = 255
+    res = fill_depth(np.where(hole, np.nan, noisy).astype(np.float32), rgb, "auto")
+    assert res.stats["auto_pixels"]["biharmonic"] == int(lamp.sum())
+    assert res.stats["auto_pixels"]["nyu_colorization"] == int((hole & ~lamp).sum())
 
 def test_highlight_holes_get_the_smooth_fill_not_the_colour_guided_one():
     """A wide highlight on striped tissue: its colour says nothing of its depth, and colorization, which

@@ -74,7 +74,16 @@ before then are on the narrower splits.
    the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
    report split 0.705 -> 0.673, 18 -> 17 of 101. A highlight (a hole at least half of whose pixels are bright,
    unsaturated and brighter than the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`)
-   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.). **Noise-free
+   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.). Nor is a light
+   inside a guided hole (:func:`~rgbd2scene.reconstruct.fill.holes.lights_in_holes`, session 14, helper ``spec14``): a
+   blob of highlight pixels less than :data:`~rgbd2scene.reconstruct.fill.holes.LIGHT_SURROUND` of whose valid
+   surround within 3 px is bright takes the hole's biharmonic fill (clipped as above) instead of the mean, planes
+   and quadrics still taking over where they pass (SUN's ceiling lamp merged with the beyond-range region's margin:
+   24-48 mm of the row's error in the mean, 10-21 in the thin plate; Redwood: a 2000 px highlight inside an
+   18000 px hole, 15-48 mm against 3-8). Within an overexposed region the pixels that pass the highlight test
+   are patches among clipped ones, their surround bright: they stay guided (there the mean beats the thin plate
+   as often as not). Tuning split 0.6393 -> 0.6337, rows above 1.10 44 -> 35; with step 3's session 14 change,
+   held-out 0.635 -> 0.627, 42 -> 33 (``fill.md``). **Noise-free
    depth** (session 13, :func:`plain_holes`): where a quadric fits each 7x7 window of the capture to float rounding
    (:func:`~rgbd2scene.reconstruct.fill.planes.noise_free`: depth from CT, a renderer; a plane's residual would count
    a smooth surface's curvature as noise), a wide hole enclosed by valid depth whose ring no depth edge crosses (no
@@ -171,6 +180,7 @@ from rgbd2scene.reconstruct.fill.holes import (
     components,
     highlight_pixels,
     hole_copies,
+    lights_in_holes,
     shadow_runs,
     shadow_split,
     step_runs,
@@ -419,6 +429,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     # evidence keeps its fill
     coloured = guided_holes(traits, rgb)
     guided = coloured[1:].any()
+    # a light inside a guided hole (a lamp merged with a wider hole): its colour is the light's, it takes the hole's
+    # thin plate
+    lights = (lights_in_holes(shine.result(), rest & coloured[labels], rgb, valid_depth(work)) if guided
+              else np.zeros(work.shape, dtype=bool))
     uncoloured = (wide & ~lit & ~coloured)[1:].any()
     ahead = {"biharmonic": (rest | edge, across)} if (wide & ~lit)[1:].any() and (edge.any() or uncoloured) else {}
     if guided:
@@ -443,7 +457,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         per_pixel = choice[labels]
         chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
         needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
-        jobs = {name: (rest, across) for name in sorted(needed)}
+        jobs = {name: (rest, across) for name in sorted(needed | ({"biharmonic"} if lights.any() else set()))}
         if guided and edge.any():  # the band's thin plate, as when the guided holes' fill held the biharmonic one
             jobs["biharmonic"] = (rest, across)
         joint = "biharmonic" in jobs and edge.any()
@@ -465,6 +479,11 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
+    if lights.any():
+        out[lights] = fills["biharmonic"][lights]
+        counts["biharmonic"] = counts.get("biharmonic", 0) + int(lights.sum())
+        for b in CANDIDATES[GUIDED]:
+            counts[b] -= int(lights.sum())
     if pinned is not None and pinned.any():
         membrane = fills["harmonic"] if "harmonic" in fills else _base_fill("harmonic", out, None, pinned, across)
         out[pinned] = (out[pinned] + membrane[pinned]) / 2
