@@ -107,7 +107,7 @@ before then are on the narrower splits.
    ``small_radius`` or across a step) takes the fill its own copies favour, and the biharmonic fill where it
    has no copy, as a wide hole neither lit nor colour-guided: over a wide hole whether a membrane or a thin
    plate fits is its surface's, and pooled, other holes' copies decided it (session 14, ``fill.md``, helper
-   ``spec14``: SUN's two ceiling lamps, one lamp's copies erring 0.39-0.49 m (five times its own error) outweighing
+   ``spec14``: SUN's two ceiling lamps, one lamp's copies erring 0.39-0.49 m (several times its own error) outweighing
    the other's 0.08-0.09 m, which favour the membrane that wins on both; Redwood's sunlit patch, 13766 px
    without a copy, 30.1 mm harmonic as its small holes' copies chose, 23.4 mm biharmonic; tuning split 0.6434 ->
    0.6393, rows above 1.10 47 -> 44, only specular rows moved). Under white noise both fill from the smoothed rim
