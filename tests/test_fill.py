@@ -26,7 +26,7 @@ from rgbd2scene.reconstruct.fill import (
     shadow_pixels,
     step_runs,
 )
-from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies
+from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies, lights_in_holes
 from rgbd2scene.reconstruct.fill.planes import NOISE_FLOOR, noise_correlation, noise_free, sensor_noise
 from rgbd2scene.reconstruct.fill.policy import (
     BAND_STRETCH,
@@ -743,6 +743,33 @@ def test_narrow_holes_get_the_smooth_fill_their_copies_favour():
     assert {NAMES[k] for k in choose_per_hole(crowded, None, labels, narrow)[1:]} == {"harmonic"}
 
 
+def test_wide_highlights_take_the_smooth_fill_their_own_copies_favour():
+    """A wide highlight on the noise-free left half takes the thin plate, one on the noisy right half the membrane,
+    whatever the copies of the others favour; one with no room for a copy of its own takes the thin plate, not
+    what the narrow holes' copies favour. The narrow holes take one fill together (the noise is the sensor's)."""
+    curved = smooth_surface()
+    noise = 1 + 0.01 * np.random.default_rng(0).standard_normal((H, W))
+    depth = np.where(np.arange(W)[None, :] >= W // 2, curved * noise, curved).astype(np.float32)
+    centres = ((30, 25), (30, 135), (90, 25), (90, 135))  # the highlights left and right, then the narrow holes
+    holes = disc(30, 25, 5) | disc(30, 135, 5) | disc(90, 25, 4) | disc(90, 135, 4)
+    labels, n = components(holes)
+    lit = np.zeros(n + 1, bool)
+    lit[[labels[centres[0]], labels[centres[1]]]] = True
+    traits = HoleTraits(np.zeros(n + 1, bool), lit.copy(), lit)
+    choice = [NAMES[k] for k in choose_per_hole(np.where(holes, np.nan, depth).astype(np.float32), None, labels,
+                                                traits)[[labels[c] for c in centres]]]
+    assert choice[:2] == ["biharmonic", "harmonic"] and choice[2] == choice[3]
+    # all noisy: the narrow holes' copies favour the membrane; a highlight 61 px across has no room for a copy
+    noisy = (curved * noise).astype(np.float32)
+    holes = disc(15, 20, 4) | disc(105, 140, 4) | disc(60, 80, 30)
+    labels, n = components(holes)
+    lit = np.zeros(n + 1, bool)
+    lit[labels[60, 80]] = True
+    traits = HoleTraits(np.zeros(n + 1, bool), lit.copy(), lit)
+    choice = choose_per_hole(np.where(holes, np.nan, noisy).astype(np.float32), None, labels, traits)
+    assert NAMES[choice[labels[60, 80]]] == "biharmonic"
+    assert NAMES[choice[labels[15, 20]]] == NAMES[choice[labels[105, 140]]] == "harmonic"
+
 def _two_rooms() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Left: a smooth dome painted with blotches that have nothing to do with its depth. Right: slats at
     two depths, each slat its own colour (colour edges at the depth edges). A wide hole in each."""
@@ -925,6 +952,27 @@ def test_highlight_pixels_are_bright_unsaturated_and_brighter_than_their_rim():
     assert not highlight_pixels(red, spot).any()
     assert not highlight_pixels(rgb, spot)[~spot].any()
 
+
+def test_a_light_inside_a_wide_hole_takes_its_thin_plate_not_the_colour_guided_fill():
+    """A lamp on a dark ceiling, hidden with a wider hole beside it: its pixels take the hole's thin plate (its
+    colour is the light's). The same lamp in an overexposed region (its surround bright too) is no light on a
+    darker surface and stays colour-guided."""
+    noisy = smooth_surface() * (1 + 0.003 * np.random.default_rng(2).standard_normal((H, W))).astype(np.float32)
+    hole = disc(60, 80, 20)
+    lamp = disc(60, 96, 4) & hole  # touching the hole's rim from inside
+    valid = ~hole
+    for surround, expected in ((70, lamp), (230, np.zeros((H, W), bool))):
+        rgb = np.full((H, W, 3), surround, np.uint8)
+        rgb[lamp] = 255
+        shine = highlight_pixels(rgb, hole)
+        assert shine[lamp].all()
+        assert (lights_in_holes(shine, hole, rgb, valid) == expected).all()
+    rgb = np.full((H, W, 3), 70, np.uint8)
+    rgb[..., 1] = (70 + 40 * np.sin(np.arange(W) / 6.0)).astype(np.uint8)[None, :]  # texture for the colour fills
+    rgb[lamp] = 255
+    res = fill_depth(np.where(hole, np.nan, noisy).astype(np.float32), rgb, "auto")
+    assert res.stats["auto_pixels"]["biharmonic"] == int(lamp.sum())
+    assert res.stats["auto_pixels"]["nyu_colorization"] == int((hole & ~lamp).sum())
 
 def test_highlight_holes_get_the_smooth_fill_not_the_colour_guided_one():
     """A wide highlight on striped tissue: its colour says nothing of its depth, and colorization, which

@@ -525,6 +525,40 @@ def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = HIGH
     return holes & (value >= min_value) & (saturation <= max_saturation) & (value - mean[rows, cols] >= contrast)
 
 
+#: A highlight inside a wider hole is a light against a darker surface when less than this share of the valid
+#: pixels round it is bright (:func:`lights_in_holes`).
+LIGHT_SURROUND = 0.1
+
+
+def lights_in_holes(shine: np.ndarray, within: np.ndarray, rgb: np.ndarray, valid: np.ndarray, reach: float = 3.0,
+                    bright_share: float = LIGHT_SURROUND) -> np.ndarray:
+    """The highlight pixels ``shine`` (:func:`highlight_pixels`) in ``within`` whose 8-connected blob is a light
+    against a darker surface: less than ``bright_share`` of the valid pixels within ``reach`` px of the blob are
+    bright (HSV value >= :data:`HIGHLIGHT_VALUE`). Within an overexposed region the pixels that pass the highlight
+    test are patches among other bright ones, and their surround is bright too.
+
+    Parameters
+    ----------
+    shine, within, valid : bool (H, W).
+    rgb : uint8 (H, W, 3).
+
+    Returns
+    -------
+    bool (H, W), within ``shine & within``.
+    """
+    blobs, n = ndi.label(shine & within, structure=_EIGHT)
+    if n == 0:
+        return np.zeros(shine.shape, dtype=bool)
+    distance, (rows, cols) = ndi.distance_transform_edt(blobs == 0, return_indices=True)
+    ring = valid & (distance > 0) & (distance <= reach)
+    owner = blobs[rows[ring], cols[ring]]
+    bright = np.asarray(rgb).max(axis=2)[ring] >= HIGHLIGHT_VALUE
+    seen = np.bincount(owner, minlength=n + 1)
+    dark = (seen > 0) & (np.bincount(owner, weights=bright, minlength=n + 1) < bright_share * seen)
+    dark[0] = False
+    return dark[blobs]
+
+
 # ----------------------------------------------------------------------------------------------
 # depth steps across holes
 

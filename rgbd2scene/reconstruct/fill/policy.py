@@ -74,7 +74,16 @@ before then are on the narrower splits.
    the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
    report split 0.705 -> 0.673, 18 -> 17 of 101. A highlight (a hole at least half of whose pixels are bright,
    unsaturated and brighter than the surface round it: :func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`)
-   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.). **Noise-free
+   is not guided by colour, whatever its width: its colour is the light's, not the surface's (3.). Nor is a light
+   inside a guided hole (:func:`~rgbd2scene.reconstruct.fill.holes.lights_in_holes`, session 14, helper ``spec14``): a
+   blob of highlight pixels less than :data:`~rgbd2scene.reconstruct.fill.holes.LIGHT_SURROUND` of whose valid
+   surround within 3 px is bright takes the hole's biharmonic fill (clipped as above) instead of the mean, planes
+   and quadrics still taking over where they pass (SUN's ceiling lamp merged with the beyond-range region's margin:
+   24-48 mm of the row's error in the mean, 10-21 in the thin plate; Redwood: a 2000 px highlight inside an
+   18000 px hole, 15-48 mm against 3-8). Within an overexposed region the pixels that pass the highlight test
+   are patches among clipped ones, their surround bright: they stay guided (there the mean beats the thin plate
+   as often as not). Tuning split 0.6393 -> 0.6337, rows above 1.10 44 -> 35; with step 3's session 14 change,
+   held-out 0.635 -> 0.627, 42 -> 33 (``fill.md``). **Noise-free
    depth** (session 13, :func:`plain_holes`): where a quadric fits each 7x7 window of the capture to float rounding
    (:func:`~rgbd2scene.reconstruct.fill.planes.noise_free`: depth from CT, a renderer; a plane's residual would count
    a smooth surface's curvature as noise), a wide hole enclosed by valid depth whose ring no depth edge crosses (no
@@ -89,12 +98,20 @@ before then are on the narrower splits.
    58 -> 53 of 260), held-out 0.6560 -> 0.6490 (55 -> 49 of 244), every row but tissue-ct's bit-identical
    (``fill.md``, session 13, helper ``ct13``).
 3. **Narrow holes without a step, and highlights**: a harmonic or a biharmonic fill, whichever had the
-   smaller error on copies of all these holes pooled (whole copies lying :data:`COPY_CLEARANCE` px from any
-   invalid pixel; where none fits, copies lying 60 % on pixels 2 px from any invalid one; harmonic where none
-   fits at all). Harmonic averages a sensor's noise; biharmonic is exact on smooth noise-free depth (CT, a
-   renderer), so the depth decides rather than the sensor setting. Once per image: the noise is the
-   sensor's, the same across the image (per hole did worse). Under white noise both fill from the smoothed
-   rim (5.).
+   smaller error on copies of the holes (whole copies lying :data:`COPY_CLEARANCE` px from any invalid pixel;
+   where no hole has one, copies lying 60 % on pixels 2 px from any invalid one). Harmonic averages a
+   sensor's noise; biharmonic is exact on smooth noise-free depth (CT, a renderer), so the depth decides
+   rather than the sensor setting. The narrow holes take one fill, the one all copies favour pooled
+   (harmonic where none fits at all): their error is the noise's, the sensor's, the same across the image
+   (session 9: per hole did worse on the TUM frame and the tissue sample). A wide highlight (wider than
+   ``small_radius`` or across a step) takes the fill its own copies favour, and the biharmonic fill where it
+   has no copy, as a wide hole neither lit nor colour-guided: over a wide hole whether a membrane or a thin
+   plate fits is its surface's, and pooled, other holes' copies decided it (session 14, ``fill.md``, helper
+   ``spec14``: SUN's two ceiling lamps, one lamp's copies erring 0.39-0.49 m (several times its own error) outweighing
+   the other's 0.08-0.09 m, which favour the membrane that wins on both; Redwood's sunlit patch, 13766 px
+   without a copy, 30.1 mm harmonic as its small holes' copies chose, 23.4 mm biharmonic; tuning split 0.6434 ->
+   0.6393, rows above 1.10 47 -> 44, only specular rows moved). Under white noise both fill from the smoothed rim
+   (5.).
 4. **The border band** (shadows in it excepted), per stretch of :data:`BAND_STRETCH` px along its edge
    (:func:`choose_band`): the strip of valid depth just inside each stretch (:func:`band_strips`) is hidden,
    band and strips are filled from the rest with the biharmonic, harmonic and NYU colorization fills (at 1 /
@@ -163,6 +180,7 @@ from rgbd2scene.reconstruct.fill.holes import (
     components,
     highlight_pixels,
     hole_copies,
+    lights_in_holes,
     shadow_runs,
     shadow_split,
     step_runs,
@@ -411,6 +429,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     # evidence keeps its fill
     coloured = guided_holes(traits, rgb)
     guided = coloured[1:].any()
+    # a light inside a guided hole (a lamp merged with a wider hole): its colour is the light's, it takes the hole's
+    # thin plate
+    lights = (lights_in_holes(shine.result(), rest & coloured[labels], rgb, valid_depth(work)) if guided
+              else np.zeros(work.shape, dtype=bool))
     uncoloured = (wide & ~lit & ~coloured)[1:].any()
     ahead = {"biharmonic": (rest | edge, across)} if (wide & ~lit)[1:].any() and (edge.any() or uncoloured) else {}
     if guided:
@@ -435,7 +457,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         per_pixel = choice[labels]
         chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
         needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
-        jobs = {name: (rest, across) for name in sorted(needed)}
+        jobs = {name: (rest, across) for name in sorted(needed | ({"biharmonic"} if lights.any() else set()))}
         if guided and edge.any():  # the band's thin plate, as when the guided holes' fill held the biharmonic one
             jobs["biharmonic"] = (rest, across)
         joint = "biharmonic" in jobs and edge.any()
@@ -457,6 +479,11 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
+    if lights.any():
+        out[lights] = fills["biharmonic"][lights]
+        counts["biharmonic"] = counts.get("biharmonic", 0) + int(lights.sum())
+        for b in CANDIDATES[GUIDED]:
+            counts[b] -= int(lights.sum())
     if pinned is not None and pinned.any():
         membrane = fills["harmonic"] if "harmonic" in fills else _base_fill("harmonic", out, None, pinned, across)
         out[pinned] = (out[pinned] + membrane[pinned]) / 2
@@ -546,7 +573,7 @@ NAMES = list(CANDIDATES)
 #: The fill of a colour-guided hole (module docstring, 2.), then planes where the capture shows them: no choice by
 #: copies (choosing among it, the biharmonic fill and the NYU colorization did worse, ``fill.md`` session 10).
 GUIDED = "nyu_colorization+guided_thin_plate"
-#: What narrow holes and highlights choose between on their copies, once per image (module docstring, 3.).
+#: What narrow holes and highlights choose between on copies (module docstring, 3.).
 SMOOTH = ("harmonic", "biharmonic")
 #: Within this many px of a guided hole's rim its plane or quadric is blended in linearly from the hole's other fill
 #: (step 2).
@@ -704,11 +731,12 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
 
     Copies of each narrow hole and highlight are laid onto valid depth nearby, each wholly on pixels at least
     :data:`COPY_CLEARANCE` px from any invalid one (:func:`~rgbd2scene.reconstruct.fill.holes.hole_copies`),
-    and filled with the candidates: all copies at once, one solve per base fill. Narrow holes and
-    highlights take the smooth fill (harmonic or biharmonic) with the least error over all their copies
-    pooled; where none of them has a whole copy, over copies that lie 60 % on pixels 2 px from any
-    invalid one (a thin ring round a hole beyond range has no room for a whole copy); harmonic where
-    none fits at all. A colour-guided hole (wide or across a step, not a highlight, with RGB) takes
+    and filled with the candidates: all copies at once, one solve per base fill. The narrow holes take the
+    smooth fill (harmonic or biharmonic) with the least error over all their copies pooled; where none of
+    them has a whole copy, over copies that lie 60 % on pixels 2 px from any invalid one (a thin ring round a
+    hole beyond range has no room for a whole copy); harmonic where none fits at all. A wide highlight takes
+    the smooth fill with the least error over its own copies, the biharmonic fill where it has none. A
+    colour-guided hole (wide or across a step, not a highlight, with RGB) takes
     :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate); without RGB, the
     biharmonic fill.
 
@@ -739,9 +767,16 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     if not (smooth & (npx > 0)).any():
         err, npx = _copy_errors(depth, smooth_only, traits, 2, 0.6, copies, pool)
     scored = smooth & (npx > 0)
-    if scored.any():  # one smooth fill for all narrow holes and highlights: noise is the sensor's
+    if scored.any():  # narrow holes: one smooth fill for all, which all copies favour pooled: noise is the sensor's
         best = int((err[scored] * npx[scored, None]).sum(axis=0).argmin())
         choice[smooth] = NAMES.index(SMOOTH[best])
+    # a wide highlight: what its own copies favour (whether a membrane or a thin plate fits a wide hole is its
+    # surface's, not the noise's: pooled, other holes' copies decide it), the thin plate where it has no copy, as a
+    # wide hole neither lit nor colour-guided
+    wide_lit = smooth & traits.wide
+    own = np.array([NAMES.index(name) for name in SMOOTH])[err.argmin(axis=1)]
+    choice[wide_lit & (npx > 0)] = own[wide_lit & (npx > 0)]
+    choice[wide_lit & (npx == 0)] = NAMES.index("biharmonic")
     return choice
 
 
