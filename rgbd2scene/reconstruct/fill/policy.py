@@ -373,7 +373,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     counts: dict[str, int] = {}
     runs = step_runs(work, todo, step)
     kept, width = shadow_runs(runs, work, fx, baselines, rgb=rgb)
-    shadow, rim = shadow_split(kept, width, work.shape, rgb)
+    shadow, rim = shadow_split(kept, width, work, rgb)
     shadow &= todo
     rim &= todo
     if shadow.any():
