@@ -95,7 +95,9 @@ Depth steps and shadows (:func:`step_runs`, :func:`shadow_pixels`)
 A horizontal or vertical run of hole pixels bridges a *step* when its two valid end pixels differ by
 more than ``step`` (4 %) in inverse depth, even after extrapolating each side's slope across the run.
 A horizontal step run no wider than the shadow the sensor casts there (see
-``rgbd2scene.capture.sensors``), fx * b * (1/z_near - 1/z_far) + 1 px, is an occlusion shadow.
+``rgbd2scene.capture.sensors``), fx * b * (1/z_near - 1/z_far) + 1 px, is an occlusion shadow, but for
+the pixels beyond the shadow's reach in the near surface's colour and the near part of a hole lying across
+the step, under which the near surface runs on above and below (:func:`shadow_split`).
 """
 
 from __future__ import annotations
