@@ -727,7 +727,7 @@ def shadow_runs(
 
 
 #: How far (px) above and below a shadow run's pixel :func:`shadow_split` looks for the surface round it.
-SURFACE_REACH = 12
+SURFACE_REACH = 20
 #: The fewest pixels from a run's near end that, each with the near surface above and below it, make a near part
 #: of the run (:func:`shadow_split`): fewer are the ragged outline of the near surface.
 NEAR_PART_MIN = 3

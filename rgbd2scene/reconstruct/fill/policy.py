@@ -30,11 +30,11 @@ before then are on the narrower splits.
    whose nearest valid pixels above and below lie on the near surface, in that surface's colour, at least 3
    of them in a row (fewer beside a row with 3), are a hole lying across the step (a dropout, a hole mask laid
    on another capture) rather than a shadow, whose near end is the near surface's outline itself, and take
-   the near end's depth (session 14, ``fill.md``: tuning split 0.6434 -> 0.6402, rows above 1.10 47 -> 45;
-   held-out 0.635 -> 0.632, 42 -> 41; no simulated shadow row moves). A run holding a highlight brighter
-   than both its ends (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no shadow (the colour
-   camera sees the far surface in a shadow, not the light) and is filled as a hole. Time-of-flight sensors
-   and ``sensor="none"`` cast no shadows. On the benchmark's simulated shadows the row fill is about 14 times
+   the near end's depth (session 14, ``fill.md``: tuning split 0.6434 -> 0.6396, rows above 1.10 47 -> 45;
+   held-out 0.635 -> 0.632, 42 -> 41; the simulated shadow rows unchanged but one, by 0.1 %). A run holding
+   a highlight brighter than both its ends (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no
+   shadow (the colour camera sees the far surface in a shadow, not the light) and is filled as a hole.
+   Time-of-flight sensors and ``sensor="none"`` cast no shadows. On the benchmark's simulated shadows the row fill is about 14 times
    as accurate as the best reference (family geometric mean 0.07).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
    2.5 % of the shorter side), highlights excepted ("guided" holes): the mean of the NYU toolbox's
