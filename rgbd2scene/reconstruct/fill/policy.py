@@ -34,8 +34,8 @@ before then are on the narrower splits.
    held-out 0.635 -> 0.632, 42 -> 41; the simulated shadow rows unchanged but one, by 0.1 %). A run holding
    a highlight brighter than both its ends (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no
    shadow (the colour camera sees the far surface in a shadow, not the light) and is filled as a hole.
-   Time-of-flight sensors and ``sensor="none"`` cast no shadows. On the benchmark's simulated shadows the row fill is about 14 times
-   as accurate as the best reference (family geometric mean 0.07).
+   Time-of-flight sensors and ``sensor="none"`` cast no shadows. On the benchmark's simulated shadows the
+   row fill is about 14 times as accurate as the best reference (family geometric mean 0.07).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
    2.5 % of the shorter side), highlights excepted ("guided" holes): the mean of the NYU toolbox's
    colorization (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the known pixels
