@@ -243,6 +243,29 @@ def test_a_dropout_on_the_near_rim_beside_a_shadow_is_not_shadow():
     assert with_colour[70:100, 90 - width:90].all() and not with_colour[70:100, 90].any()
 
 
+def test_a_hole_across_a_step_keeps_the_near_surface_where_it_runs_on_above_and_below():
+    """A hole lying across the box's outline (a dropout, a hole mask laid on another capture), its rows no
+    wider than the shadow there: the box runs on above and below its near part, in the box's colour, where a
+    shadow's near end is the outline itself. That part keeps the box's depth, not the far wall's 1.2 m more."""
+    truth, rgb = step_scene()
+    width = shadow_width(truth, 90, 89, 0.075)
+    depth = truth.copy()
+    hole = np.zeros((H, W), bool)
+    hole[50:61, 90 - width + 4:94] = True  # 1 px of wall, 4 of box: no wider than the shadow there
+    hole[61, 90 - width + 4:92] = True  # 2 px of box below them: the near part runs on
+    depth[hole] = np.nan
+    runs = step_runs(depth, hole)
+    sh = shadow_pixels(runs, depth, FX, KINECT_V1.shadow_baselines(), rgb=rgb)
+    assert sh[50:62, 90 - width + 4:90].all() and not sh[50:61, 90:94].any() and not sh[61, 90:92].any()
+    res = fill_depth(depth, rgb, "auto", sensor=KINECT_V1)
+    assert np.abs(res.depth[hole] - truth[hole]).max() < 0.02
+    # 2 px of box (3 of wall), as an outline ragged by 1-2 px leaves beside a shadow (NEAR_PART_MIN): a shadow
+    depth = truth.copy()
+    depth[50:61, 90 - width + 2:92] = np.nan
+    dent = step_runs(depth, ~np.isfinite(depth))
+    assert shadow_pixels(dent, depth, FX, KINECT_V1.shadow_baselines(), rgb=rgb)[50:61, 90 - width + 2:92].all()
+
+
 def test_a_slanted_surface_is_not_a_step():
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
     truth = (1.0 / (0.2 + 0.006 * v)).astype(np.float32)  # a floor from 5 m to 1.1 m

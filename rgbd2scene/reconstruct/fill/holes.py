@@ -95,7 +95,9 @@ Depth steps and shadows (:func:`step_runs`, :func:`shadow_pixels`)
 A horizontal or vertical run of hole pixels bridges a *step* when its two valid end pixels differ by
 more than ``step`` (4 %) in inverse depth, even after extrapolating each side's slope across the run.
 A horizontal step run no wider than the shadow the sensor casts there (see
-``rgbd2scene.capture.sensors``), fx * b * (1/z_near - 1/z_far) + 1 px, is an occlusion shadow.
+``rgbd2scene.capture.sensors``), fx * b * (1/z_near - 1/z_far) + 1 px, is an occlusion shadow, but for
+the pixels beyond the shadow's reach in the near surface's colour and the near part of a hole lying across
+the step, under which the near surface runs on above and below (:func:`shadow_split`).
 """
 
 from __future__ import annotations
@@ -758,7 +760,30 @@ def shadow_runs(
     return sub.subset(keep), width[keep]
 
 
-def shadow_split(runs: StepRuns, width: np.ndarray, shape, rgb: np.ndarray | None = None
+#: How far (px) above and below a shadow run's pixel :func:`shadow_split` looks for the surface round it.
+SURFACE_REACH = 20
+#: The fewest pixels from a run's near end that, each with the near surface above and below it, make a near part
+#: of the run (:func:`shadow_split`): fewer are the ragged outline of the near surface.
+NEAR_PART_MIN = 3
+
+
+def vertical_neighbours(depth: np.ndarray, reach: int = SURFACE_REACH) -> tuple[np.ndarray, np.ndarray]:
+    """The depth of the nearest valid pixel above each pixel and of the nearest one below it, each NaN
+    where none lies within ``reach`` px."""
+    valid = valid_depth(depth)
+    h, w = depth.shape
+    line = np.arange(h)[:, None]
+    above = np.maximum.accumulate(np.where(valid, line, -1), axis=0)
+    below = np.minimum.accumulate(np.where(valid, line, h)[::-1], axis=0)[::-1]
+    cols = np.arange(w)[None, :]
+    out = []
+    for index, gap in ((above, line - above), (below, below - line)):
+        near = (gap <= reach) & (index >= 0) & (index < h)
+        out.append(np.where(near, depth[np.clip(index, 0, h - 1), cols], np.nan))
+    return out[0], out[1]
+
+
+def shadow_split(runs: StepRuns, width: np.ndarray, depth: np.ndarray, rgb: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The pixels of shadow runs (:func:`shadow_runs`) that lie in the shadow, and the rest.
 
@@ -777,17 +802,32 @@ def shadow_split(runs: StepRuns, width: np.ndarray, shape, rgb: np.ndarray | Non
     with no dropouts) 12.3 -> 15.0 mm (the references: 235 mm). Cut at ``floor(width)`` instead:
     dropouts 1.03 but TUM shadows 116 mm (their colour does not tell: 74 mm).
 
+    **The near part** (session 14): a run no wider than the shadow need not be one. A hole that merely
+    lies across a step (a dropout, a hole mask laid on another capture) covers the near surface too, and
+    there the near surface runs on above and below the hole, where a shadow, a band beside the near
+    surface's outline, has the far surface or more shadow (the outline runs on beside it). With ``rgb``,
+    the pixels from the near end on (never the one next to the far end) whose nearest valid pixels above
+    and below (within :data:`SURFACE_REACH` px) both lie on the near surface (inverse depth nearer the near
+    end's than the far end's) and whose colour is nearer the near surface's (the mean of the 4 valid pixels
+    beyond the near end) than the far surface's (the same beyond the far end) are the near surface, when
+    at least :data:`NEAR_PART_MIN` of them follow each other from the near end, or fewer where a run in the
+    next row up or down, on the same side and overlapping, has that many: a shadow's near end is the
+    outline, which is ragged by 1-2 px in the captures (on the benchmark's simulated shadows such pixels
+    lie 1-2 px from the near end, seldom more, and are seldom of the near surface's colour), while the
+    near part of a hole across the outline runs on from row to row. These pixels take the near end's depth.
+
     Returns
     -------
     bool (H, W) shadow pixels; bool (H, W) the other pixels of the runs (near surface).
     """
+    shape = depth.shape
     run, pos = run_cells(runs.start, runs.stop)
     reach = np.maximum(1, np.round(width)).astype(np.int64)[run]
     near_first = runs.near_first[run]
     far_end = np.where(near_first, runs.stop[run] - 1 - pos, pos - runs.start[run])  # 0: next to it
     rows, cols = runs.line[run], pos  # horizontal runs only
     inside = far_end < reach
-    if rgb is not None and (~inside).any():
+    if rgb is not None and run.size:
         colour = np.asarray(rgb).astype(np.int32)
         near_col = np.where(near_first, runs.start[run] - 1, runs.stop[run])
         far_col = np.where(near_first, runs.stop[run], runs.start[run] - 1)
@@ -795,6 +835,7 @@ def shadow_split(runs: StepRuns, width: np.ndarray, shape, rgb: np.ndarray | Non
         to_near = np.abs(px - colour[rows, near_col]).sum(axis=1)
         to_far = np.abs(px - colour[rows, far_col]).sum(axis=1)
         inside |= to_far <= to_near
+        inside &= ~_near_part(runs, depth, colour, run, rows, cols, near_col, far_col, far_end)
     else:
         inside[:] = True
     shadow = np.zeros(shape, dtype=bool)
@@ -802,6 +843,54 @@ def shadow_split(runs: StepRuns, width: np.ndarray, shape, rgb: np.ndarray | Non
     shadow[rows[inside], cols[inside]] = True
     rest[rows[~inside], cols[~inside]] = True
     return shadow, rest
+
+
+def _near_part(runs, depth, colour, run, rows, cols, near_col, far_col, far_end) -> np.ndarray:
+    """Per run cell of :func:`shadow_split`: it belongs to the run's near part (see there)."""
+    known = valid_depth(depth)
+    inverse = np.where(known, 1.0 / np.where(known, depth, 1.0), np.nan)
+    near_inv, far_inv = inverse[rows, near_col], inverse[rows, far_col]
+
+    def on_near(inv):
+        with np.errstate(invalid="ignore"):
+            return np.abs(inv - near_inv) < np.abs(inv - far_inv)  # False where NaN: no pixel within reach
+
+    above, below = vertical_neighbours(depth)
+    flag = on_near(1.0 / above[rows, cols]) & on_near(1.0 / below[rows, cols]) & (far_end > 0)
+    if not flag.any():
+        return flag
+    outward = np.where(runs.near_first[run], -1, 1)  # away from the run at its near end
+
+    def surface_colour(end_col, away):
+        total, count = np.zeros(colour[rows, cols].shape), np.zeros(run.size)
+        for k in range(1, 5):
+            c = np.clip(end_col + away * k, 0, depth.shape[1] - 1)
+            ok = known[rows, c]
+            total[ok] += colour[rows[ok], c[ok]]
+            count[ok] += 1
+        return total / np.maximum(count, 1)[:, None]
+
+    px = colour[rows, cols]
+    flag &= (np.abs(px - surface_colour(near_col, outward)).sum(axis=1)
+             < np.abs(px - surface_colour(far_col, -outward)).sum(axis=1))
+    # the stretch of flagged cells from the near end: up to the first cell that is not
+    from_near = np.abs(cols - near_col)  # 1: next to the near end
+    first_not = np.full(runs.line.size, np.iinfo(np.int64).max)
+    np.minimum.at(first_not, run[~flag], from_near[~flag])
+    stretch = np.minimum(first_not, runs.length + 1) - 1
+    # a shorter stretch is a near part too where a run in the next row up or down, on the same side and
+    # overlapping it, has a full one: the near surface runs on under the hole across rows
+    full = stretch >= NEAR_PART_MIN
+    if full.any():
+        full_cells = np.zeros((2, *depth.shape), dtype=bool)
+        full_cells[runs.near_first[run].astype(int)[full[run]], rows[full[run]], cols[full[run]]] = True
+        side = runs.near_first[run].astype(int)
+        beside = (full_cells[side, np.maximum(rows - 1, 0), cols] | full_cells[side, np.minimum(rows + 1,
+                                                                                             depth.shape[0] - 1), cols])
+        next_to_full = np.zeros(runs.line.size, dtype=bool)
+        np.logical_or.at(next_to_full, run, beside)
+        full |= next_to_full & (stretch > 0)
+    return flag & (from_near < first_not[run]) & full[run]
 
 
 def shadow_pixels(
@@ -827,7 +916,7 @@ def shadow_pixels(
     bool (H, W)
     """
     kept, width = shadow_runs(runs, depth, fx, baselines, slack_px, rgb)
-    return shadow_split(kept, width, depth.shape, rgb)[0]
+    return shadow_split(kept, width, depth, rgb)[0]
 
 
 # ----------------------------------------------------------------------------------------------
