@@ -466,7 +466,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         planar = (rest & (wide & ~lit)[labels]) if guided else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
         curve_fill = None if planar is None else solves.submit(quadric_fill, work, planar)
-        choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves)
+        choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves, step=step)
         ways, ways_used, band_jobs = ((np.zeros(work.shape, dtype=int), [], {}) if band_fills is None
                                       else band_fills.result())
         per_pixel = choice[labels]
@@ -696,14 +696,23 @@ def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]],
 
 
 def _copy_errors(depth, labels, traits: HoleTraits, clearance: int, coverage: float, copies: int,
-                 pool: Executor | None = None):
+                 pool: Executor | None = None, step: float = 0.04):
     """Mean absolute error of each :data:`SMOOTH` fill on each hole's copies (inf where none fits) and the
-    copies' pixel count per hole."""
+    copies' pixel count per hole. A copy that bridges a depth step (:func:`~rgbd2scene.reconstruct.fill.holes.
+    step_runs`, ``step``) where its hole does not is left out: a narrow hole across a step would be a guided one
+    (module docstring, 3.), and such a copy's error is the step's, not the surface's."""
     n = traits.wide.size - 1
     valid = valid_depth(depth)
     free = valid & ~ndi.binary_dilation(~valid, iterations=clearance)
     source = hole_copies(labels, free, copies, coverage=coverage)
     test = source >= 0
+    if test.any():
+        pieces, _ = components(test)
+        owners = np.zeros(pieces.max() + 1, dtype=int)
+        owners[pieces[test]] = labels.ravel()[source[test]]
+        bridged = np.zeros(owners.size, dtype=bool)
+        bridged[pieces[step_runs(np.where(test, np.nan, depth), test, step).pixels(depth.shape) & test]] = True
+        test &= ~(bridged & ~traits.stepped[owners])[pieces]
     err = np.full((n + 1, len(SMOOTH)), np.inf)
     if not test.any():
         return err, np.zeros(n + 1)
@@ -764,7 +773,7 @@ def guided_holes(traits: HoleTraits, rgb: np.ndarray | None) -> np.ndarray:
 
 
 def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, traits: HoleTraits,
-                    copies: int = 3, pool: Executor | None = None) -> np.ndarray:
+                    copies: int = 3, pool: Executor | None = None, step: float = 0.04) -> np.ndarray:
     """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
 
     Copies of each narrow hole and highlight are laid onto valid depth nearby, each wholly on pixels at least
@@ -772,7 +781,8 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     and filled with the candidates: all copies at once, one solve per base fill. The narrow holes take the
     smooth fill (harmonic or biharmonic) with the least error over all their copies pooled; where none of
     them has a whole copy, over copies that lie 60 % on pixels 2 px from any invalid one (a thin ring round a
-    hole beyond range has no room for a whole copy); harmonic where none fits at all. A wide highlight takes
+    hole beyond range has no room for a whole copy); harmonic where none fits at all. A copy that bridges a depth
+    step its hole does not is no evidence (:func:`_copy_errors`). A wide highlight takes
     the smooth fill with the least error over its own copies, the biharmonic fill where it has none. A
     colour-guided hole (wide or across a step, not a highlight, with RGB) takes
     :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate); without RGB, the
@@ -801,9 +811,9 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     if not smooth.any():  # the copies only choose the smooth fill
         return choice
     smooth_only = np.where(smooth[labels], labels, 0)  # the other holes' copies would take room and solve time
-    err, npx = _copy_errors(depth, smooth_only, traits, COPY_CLEARANCE, 1.0, copies, pool)
+    err, npx = _copy_errors(depth, smooth_only, traits, COPY_CLEARANCE, 1.0, copies, pool, step)
     if not (smooth & (npx > 0)).any():
-        err, npx = _copy_errors(depth, smooth_only, traits, 2, 0.6, copies, pool)
+        err, npx = _copy_errors(depth, smooth_only, traits, 2, 0.6, copies, pool, step)
     scored = smooth & (npx > 0)
     if scored.any():  # narrow holes: one smooth fill for all, which all copies favour pooled: noise is the sensor's
         best = int((err[scored] * npx[scored, None]).sum(axis=0).argmin())
