@@ -885,8 +885,8 @@ def _near_part(runs, depth, colour, run, rows, cols, near_col, far_col, far_end)
         full_cells = np.zeros((2, *depth.shape), dtype=bool)
         full_cells[runs.near_first[run].astype(int)[full[run]], rows[full[run]], cols[full[run]]] = True
         side = runs.near_first[run].astype(int)
-        beside = (full_cells[side, np.maximum(rows - 1, 0), cols] | full_cells[side, np.minimum(rows + 1,
-                                                                                             depth.shape[0] - 1), cols])
+        up, down = np.maximum(rows - 1, 0), np.minimum(rows + 1, depth.shape[0] - 1)
+        beside = full_cells[side, up, cols] | full_cells[side, down, cols]
         next_to_full = np.zeros(runs.line.size, dtype=bool)
         np.logical_or.at(next_to_full, run, beside)
         full |= next_to_full & (stretch > 0)
