@@ -26,7 +26,7 @@ from rgbd2scene.reconstruct.fill import (
     shadow_pixels,
     step_runs,
 )
-from rgbd2scene.reconstruct.fill.holes import components, highlight_pixels, hole_copies, lights_in_holes
+from rgbd2scene.reconstruct.fill.holes import STEP, components, highlight_pixels, hole_copies, lights_in_holes
 from rgbd2scene.reconstruct.fill.planes import NOISE_FLOOR, noise_correlation, noise_free, sensor_noise
 from rgbd2scene.reconstruct.fill.policy import (
     BAND_STRETCH,
@@ -894,9 +894,9 @@ def test_noise_free_depth_and_its_plain_holes():
     labels, n = components(holes)
     todo = left | right  # the notch's pixels beyond the dome's outline left unfilled, as outside the surface
     todo |= notch & (np.mgrid[0:H, 0:W][0] > 2)
-    plain = plain_holes(depth, todo, labels, n, step=0.04)
+    plain = plain_holes(depth, todo, labels, n, step=STEP)
     assert plain[labels[60, 40]] and not plain[labels[60, 122]] and not plain[labels[4, 40]]
-    assert not plain_holes(noisy, todo, labels, n, step=0.04).any()
+    assert not plain_holes(noisy, todo, labels, n, step=STEP).any()
 
 
 def test_a_model_holding_part_of_a_hole_ramps_in_from_that_parts_edge():

@@ -93,7 +93,7 @@ Outside pixels stay NaN and the mesh ends at them.
 Depth steps and shadows (:func:`step_runs`, :func:`shadow_pixels`)
 ------------------------------------------------------------------
 A horizontal or vertical run of hole pixels bridges a *step* when its two valid end pixels differ by
-more than ``step`` (4 %) in inverse depth, even after extrapolating each side's slope across the run.
+more than ``step`` (:data:`STEP`, 4 %) in inverse depth, even after extrapolating each side's slope across the run.
 A horizontal step run no wider than the shadow the sensor casts there (see
 ``rgbd2scene.capture.sensors``), fx * b * (1/z_near - 1/z_far) + 1 px, is an occlusion shadow, but for
 the pixels beyond the shadow's reach in the near surface's colour and the near part of a hole lying across
@@ -633,7 +633,12 @@ class StepRuns:
         return out
 
 
-def step_runs(depth: np.ndarray, mask: np.ndarray, step: float = 0.04, slope_px: int = 6) -> StepRuns:
+#: A run of hole pixels bridges a depth step when its ends differ by more than this share in inverse depth (4 %):
+#: every function of the fill that tells steps takes it as its default.
+STEP = 0.04
+
+
+def step_runs(depth: np.ndarray, mask: np.ndarray, step: float = STEP, slope_px: int = 6) -> StepRuns:
     """The runs of ``mask`` pixels that bridge a depth step.
 
     A horizontal or vertical run of mask pixels with valid depth at both ends bridges a step when the
@@ -680,12 +685,12 @@ def step_runs(depth: np.ndarray, mask: np.ndarray, step: float = 0.04, slope_px:
     return StepRuns(*(np.concatenate([p[i] for p in parts]) for i in range(5)))
 
 
-def near_side(depth: np.ndarray, mask: np.ndarray, step: float = 0.04) -> np.ndarray:
+def near_side(depth: np.ndarray, mask: np.ndarray, step: float = STEP) -> np.ndarray:
     """bool (H, W): valid pixels at the near end of a depth step across a hole (see :func:`step_runs`)."""
     return step_runs(depth, mask, step).near_ends(depth.shape)
 
 
-def near_exclusion(depth, mask, near_ends, step: float = 0.04, radius: int = 2) -> np.ndarray:
+def near_exclusion(depth, mask, near_ends, step: float = STEP, radius: int = 2) -> np.ndarray:
     """The near-side end pixels of step runs plus the valid pixels within ``radius`` of them that lie
     on the near surface (not deeper than the nearest end by more than step/2)."""
     if radius <= 0 or not near_ends.any():

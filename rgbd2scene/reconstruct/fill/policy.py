@@ -187,6 +187,7 @@ from scipy import ndimage as ndi
 from rgbd2scene.blas import single_blas_thread
 from rgbd2scene.capture.sensors import KINECT_V1, Sensor
 from rgbd2scene.reconstruct.fill.holes import (
+    STEP,
     StepRuns,
     classify_holes,
     components,
@@ -270,7 +271,7 @@ def fill_depth(
     border_width: int | None = None,
     fill_border: bool = True,
     min_radius: float | None = None,
-    step: float = 0.04,
+    step: float = STEP,
     small_radius: float | None = None,
     copies: int = 3,
     inpaint_radius: float = 5.0,
@@ -696,7 +697,7 @@ def _base_fills(depth, rgb, jobs: dict[str, tuple[np.ndarray, np.ndarray]],
 
 
 def _copy_errors(depth, labels, traits: HoleTraits, clearance: int, coverage: float, copies: int,
-                 pool: Executor | None = None, step: float = 0.04):
+                 pool: Executor | None = None, step: float = STEP):
     """Mean absolute error of each :data:`SMOOTH` fill on each hole's copies (inf where none fits) and the
     copies' pixel count per hole. A copy that bridges a depth step (:func:`~rgbd2scene.reconstruct.fill.holes.
     step_runs`, ``step``) where its hole does not is left out: a narrow hole across a step would be a guided one
@@ -773,7 +774,7 @@ def guided_holes(traits: HoleTraits, rgb: np.ndarray | None) -> np.ndarray:
 
 
 def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, traits: HoleTraits,
-                    copies: int = 3, pool: Executor | None = None, step: float = 0.04) -> np.ndarray:
+                    copies: int = 3, pool: Executor | None = None, step: float = STEP) -> np.ndarray:
     """Per hole, the index in :data:`NAMES` of its fill (module docstring, steps 2 and 3).
 
     Copies of each narrow hole and highlight are laid onto valid depth nearby, each wholly on pixels at least

@@ -31,7 +31,15 @@ from scipy import ndimage as ndi
 from scipy import sparse
 from scipy.sparse.linalg import LinearOperator, gmres, splu, spsolve
 
-from rgbd2scene.reconstruct.fill.holes import near_exclusion, near_side, reachable, row_runs, run_cells, valid_depth
+from rgbd2scene.reconstruct.fill.holes import (
+    STEP,
+    near_exclusion,
+    near_side,
+    reachable,
+    row_runs,
+    run_cells,
+    valid_depth,
+)
 
 _FOUR = ndi.generate_binary_structure(2, 1)
 _OFFSETS4 = [(-1, 0), (0, -1), (0, 1), (1, 0)]
@@ -827,7 +835,7 @@ def fill_background(
     depth: np.ndarray,
     mask: np.ndarray | None = None,
     *,
-    step: float = 0.04,
+    step: float = STEP,
     exclude_radius: int = 2,
     smooth: str = "membrane",
 ) -> np.ndarray:
@@ -843,7 +851,7 @@ def fill_background(
     ----------
     depth : float (H, W) metres, NaN = invalid.
     mask : bool (H, W) pixels to fill, default every invalid pixel.
-    step : relative depth difference across a hole that counts as a step (0.04 = 4 %).
+    step : relative depth difference across a hole that counts as a step (``holes.STEP``, 4 %).
     exclude_radius : pixels around near-side boundary pixels also dropped as constraints.
     smooth : ``"membrane"`` (harmonic) or ``"thin_plate"`` (biharmonic) fill from the far side.
 
