@@ -772,19 +772,19 @@ SURFACE_REACH = 20
 NEAR_PART_MIN = 3
 
 
-def vertical_neighbours(depth: np.ndarray, reach: int = SURFACE_REACH) -> tuple[np.ndarray, np.ndarray]:
-    """The depth of the nearest valid pixel above each pixel and of the nearest one below it, each NaN
-    where none lies within ``reach`` px."""
-    valid = valid_depth(depth)
-    h, w = depth.shape
-    line = np.arange(h)[:, None]
-    above = np.maximum.accumulate(np.where(valid, line, -1), axis=0)
-    below = np.minimum.accumulate(np.where(valid, line, h)[::-1], axis=0)[::-1]
-    cols = np.arange(w)[None, :]
+def vertical_neighbours(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, reach: int = SURFACE_REACH
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """The depth of the nearest valid pixel above each pixel (``rows``, ``cols``; the pixel itself not counted)
+    and of the nearest one below it, each NaN where none lies within ``reach`` px. Looked up per pixel, not over
+    the image: a shadow run's cells are few."""
+    h = depth.shape[0]
     out = []
-    for index, gap in ((above, line - above), (below, below - line)):
-        near = (gap <= reach) & (index >= 0) & (index < h)
-        out.append(np.where(near, depth[np.clip(index, 0, h - 1), cols], np.nan))
+    for offsets in (-np.arange(1, reach + 1), np.arange(1, reach + 1)):
+        line = rows[:, None] + offsets[None, :]
+        seen = np.where((line >= 0) & (line < h), depth[np.clip(line, 0, h - 1), cols[:, None]], np.nan)
+        known = valid_depth(seen)
+        first = known.argmax(axis=1)  # the nearest valid one, 0 where none is
+        out.append(np.where(known.any(axis=1), seen[np.arange(rows.size), first], np.nan))
     return out[0], out[1]
 
 
@@ -853,15 +853,14 @@ def shadow_split(runs: StepRuns, width: np.ndarray, depth: np.ndarray, rgb: np.n
 def _near_part(runs, depth, colour, run, rows, cols, near_col, far_col, far_end) -> np.ndarray:
     """Per run cell of :func:`shadow_split`: it belongs to the run's near part (see there)."""
     known = valid_depth(depth)
-    inverse = np.where(known, 1.0 / np.where(known, depth, 1.0), np.nan)
-    near_inv, far_inv = inverse[rows, near_col], inverse[rows, far_col]
+    near_inv, far_inv = 1.0 / depth[rows, near_col], 1.0 / depth[rows, far_col]  # a step run's ends are valid
 
     def on_near(inv):
         with np.errstate(invalid="ignore"):
             return np.abs(inv - near_inv) < np.abs(inv - far_inv)  # False where NaN: no pixel within reach
 
-    above, below = vertical_neighbours(depth)
-    flag = on_near(1.0 / above[rows, cols]) & on_near(1.0 / below[rows, cols]) & (far_end > 0)
+    above, below = vertical_neighbours(depth, rows, cols)
+    flag = on_near(1.0 / above) & on_near(1.0 / below) & (far_end > 0)
     if not flag.any():
         return flag
     outward = np.where(runs.near_first[run], -1, 1)  # away from the run at its near end
