@@ -897,6 +897,30 @@ def _near_part(runs, depth, colour, run, rows, cols, near_col, far_col, far_end)
     return flag & (from_near < first_not[run]) & full[run]
 
 
+#: Without RGB, a shadow run is kept where shadow runs make up at least this share of its hole's pixels, or ...
+SHADOW_HOLE_SHARE = 0.25
+#: ... where its stack of shadow runs is at least this many times as tall as its widest run (the fill policy's step 1).
+SHADOW_STACK = 0.5
+
+
+def shadow_shaped(runs: StepRuns, holes: np.ndarray) -> np.ndarray:
+    """Per horizontal shadow run of ``runs`` (:func:`shadow_runs`), whether it has a shadow's shape: its hole of
+    ``holes`` is at least :data:`SHADOW_HOLE_SHARE` shadow runs, or its stack (the shadow runs connected to it)
+    is at least :data:`SHADOW_STACK` times as tall as its widest run. A shadow is a strip along the occluder's
+    edge; the narrow rows at the tip of a wider hole across a step are no shadow."""
+    labels, n = components(holes)
+    hole = labels[runs.line, runs.start]
+    shadow = runs.pixels(holes.shape)
+    in_runs = np.bincount(labels[shadow], minlength=n + 1)
+    size = np.bincount(labels.ravel(), minlength=n + 1)
+    stacks, m = components(shadow)
+    stack = stacks[runs.line, runs.start]
+    index = np.arange(1, m + 1)
+    height = np.asarray(ndi.maximum(runs.line, stack, index)) - np.asarray(ndi.minimum(runs.line, stack, index)) + 1
+    widest = np.asarray(ndi.maximum(runs.length, stack, index))
+    return (in_runs[hole] >= SHADOW_HOLE_SHARE * size[hole]) | (height >= SHADOW_STACK * widest)[stack - 1]
+
+
 def shadow_pixels(
     runs: StepRuns, depth: np.ndarray, fx: float, baselines: tuple[float, float], slack_px: float = 1.0,
     rgb: np.ndarray | None = None,

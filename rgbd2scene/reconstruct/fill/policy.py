@@ -34,14 +34,14 @@ before then are on the narrower splits.
    held-out 0.635 -> 0.632, 42 -> 41; the simulated shadow rows unchanged but one, by 0.1 %). A run holding
    a highlight brighter than both its ends (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_runs`) is no
    shadow (the colour camera sees the far surface in a shadow, not the light) and is filled as a hole.
-   Without RGB nothing confirms a run: it is a shadow only in a shadow's shape (:func:`shadow_shaped`), its
-   hole at least :data:`SHADOW_HOLE_SHARE` shadow runs or its stack of shadow runs at least
-   :data:`SHADOW_STACK` times as tall as its widest run; the narrow rows at the round tip of a wider hole
-   across a step are no shadow (taken as one, they held the far depth and pulled the hole's thin plate off
-   the near surface: the NYU frame's tuning blobs row 6, 1.108 -> 0.997 times the best reference; session
-   14, helper ``norgb14``, ``fill.md``). Time-of-flight sensors and ``sensor="none"`` cast no shadows. On
-   the benchmark's simulated shadows the row fill is about 14 times as accurate as the best reference
-   (family geometric mean 0.07).
+   Without RGB nothing confirms a run: it is a shadow only in a shadow's shape
+   (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_shaped`), its hole at least ``SHADOW_HOLE_SHARE`` shadow
+   runs or its stack of shadow runs at least ``SHADOW_STACK`` times as tall as its widest run; the narrow rows
+   at the round tip of a wider hole across a step are no shadow (taken as one, they held the far depth and
+   pulled the hole's thin plate off the near surface: the NYU frame's tuning blobs row 6, 1.108 -> 0.997
+   times the best reference; session 14, helper ``norgb14``, ``fill.md``). Time-of-flight sensors and
+   ``sensor="none"`` cast no shadows. On the benchmark's simulated shadows the row fill is about 14 times as
+   accurate as the best reference (family geometric mean 0.07).
 2. **Holes with a depth step and holes wider than ``small_radius``** (an inscribed disk of radius above
    2.5 % of the shorter side), highlights excepted ("guided" holes): the mean of the NYU toolbox's
    colorization (:func:`~rgbd2scene.reconstruct.fill.solvers.fill_nyu_colorization`, on the known pixels
@@ -188,13 +188,13 @@ from rgbd2scene.blas import single_blas_thread
 from rgbd2scene.capture.sensors import KINECT_V1, Sensor
 from rgbd2scene.reconstruct.fill.holes import (
     STEP,
-    StepRuns,
     classify_holes,
     components,
     highlight_pixels,
     hole_copies,
     lights_in_holes,
     shadow_runs,
+    shadow_shaped,
     shadow_split,
     step_runs,
     valid_depth,
@@ -519,29 +519,6 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
     return out, counts, shadow
-
-
-#: Without RGB, a shadow run is kept where shadow runs make up at least this share of its hole's pixels, or ...
-SHADOW_HOLE_SHARE = 0.25
-#: ... where its stack of shadow runs is at least this many times as tall as its widest run (module docstring, 1.).
-SHADOW_STACK = 0.5
-
-
-def shadow_shaped(runs: StepRuns, holes: np.ndarray) -> np.ndarray:
-    """Per horizontal shadow run of ``runs`` (:func:`~rgbd2scene.reconstruct.fill.holes.shadow_runs`), whether it
-    has a shadow's shape: its hole of ``holes`` is at least :data:`SHADOW_HOLE_SHARE` shadow runs, or its stack (the
-    shadow runs connected to it) is at least :data:`SHADOW_STACK` times as tall as its widest run. A shadow is a
-    strip along the occluder's edge; the narrow rows at the tip of a wider hole across a step are no shadow."""
-    labels, n = components(holes)
-    hole = labels[runs.line, runs.start]
-    in_runs = np.bincount(labels[runs.pixels(holes.shape)], minlength=n + 1)
-    size = np.bincount(labels.ravel(), minlength=n + 1)
-    stacks, m = components(runs.pixels(holes.shape))
-    stack = stacks[runs.line, runs.start]
-    index = np.arange(1, m + 1)
-    height = np.asarray(ndi.maximum(runs.line, stack, index)) - np.asarray(ndi.minimum(runs.line, stack, index)) + 1
-    widest = np.asarray(ndi.maximum(runs.length, stack, index))
-    return (in_runs[hole] >= SHADOW_HOLE_SHARE * size[hole]) | (height >= SHADOW_STACK * widest)[stack - 1]
 
 
 #: Without RGB, a stepped hole whose thin plate lies on its rim's depth bound over more than this share of its pixels
