@@ -91,20 +91,20 @@ def main(argv: list[str] | None = None) -> int:
     cache = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
     t0 = time.perf_counter()
     keys = [_key(c) for c in cases]
+    rows, unsaved = {}, 0
     with ProcessPoolExecutor(args.jobs) if args.jobs > 1 else _Serial() as pool:
-        results = list(pool.map(_score, cases, [cache.get(k) for k in keys]))
-    rows = {}
-    for case, key, (refs, auto) in zip(cases, keys, results, strict=True):
-        cache[key] = refs
-        for label, ref in refs.items():
-            best = min(ref, key=ref.get)
-            rows[f"{case['capture'].name} {label} {case['seed']}"] = (auto[label] / ref[best], auto[label], best,
-                                                                     ref[best])
-    # Fresh entries only added: another run may have written the file meanwhile; rename is atomic.
-    latest = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
-    tmp = cache_file.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({**latest, **cache}))
-    tmp.replace(cache_file)
+        results = pool.map(_score, cases, [cache.get(k) for k in keys])
+        for case, key, (refs, auto) in zip(cases, keys, results, strict=True):
+            unsaved += key not in cache
+            cache[key] = refs
+            if unsaved >= 20:  # as it goes: a long first run that is stopped keeps what it computed
+                _save(cache_file, cache)
+                unsaved = 0
+            for label, ref in refs.items():
+                best = min(ref, key=ref.get)
+                rows[f"{case['capture'].name} {label} {case['seed']}"] = (auto[label] / ref[best], auto[label],
+                                                                         best, ref[best])
+    _save(cache_file, cache)
     ratios = np.array([r[0] for r in rows.values()])
     if args.rows:
         for name, (ratio, mae, best, ref) in rows.items():
@@ -123,6 +123,14 @@ def main(argv: list[str] | None = None) -> int:
           f"{int((ratios > 1.10).sum())} above 1.10, worst {rows[worst][0]:.2f} ({worst}); "
           f"{time.perf_counter() - t0:.0f} s")
     return 0
+
+
+def _save(cache_file: Path, cache: dict) -> None:
+    """Add this run's entries to the cache file (another run may have written it meanwhile; rename is atomic)."""
+    latest = json.loads(cache_file.read_text()) if cache_file.is_file() else {}
+    tmp = cache_file.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({**latest, **cache}))
+    tmp.replace(cache_file)
 
 
 class _Serial:
