@@ -102,6 +102,7 @@ the step, under which the near surface runs on above and below (:func:`shadow_sp
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -118,6 +119,19 @@ RAYS = tuple(sorted(
      (0, -1), (-1, -2), (-1, -1), (-2, -1), (-1, 0), (-2, 1), (-1, 1), (-1, 2)],
     key=lambda d: math.atan2(d[0], d[1]),
 ))
+
+
+def channel_max(rgb: np.ndarray) -> np.ndarray:
+    """(H, W): each pixel's greatest channel of ``rgb`` (H, W, C), the HSV value of an RGB image; ``rgb.max(axis=2)``,
+    which numpy reduces slowly over so short an axis (TUM frame: 8.5 ms against 0.35 ms)."""
+    rgb = np.asarray(rgb)
+    return functools.reduce(np.maximum, (rgb[..., k] for k in range(rgb.shape[2])))
+
+
+def channel_min(rgb: np.ndarray) -> np.ndarray:
+    """(H, W): each pixel's least channel of ``rgb`` (H, W, C); ``rgb.min(axis=2)``, faster (:func:`channel_max`)."""
+    rgb = np.asarray(rgb)
+    return functools.reduce(np.minimum, (rgb[..., k] for k in range(rgb.shape[2])))
 
 
 def valid_depth(depth: np.ndarray) -> np.ndarray:
@@ -516,8 +530,8 @@ def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = HIGH
     bool (H, W), within ``holes``.
     """
     rgb = np.asarray(rgb)
-    value = rgb.max(axis=2).astype(np.float32)
-    saturation = (value - rgb.min(axis=2)) / np.maximum(value, 1.0)
+    value = channel_max(rgb).astype(np.float32)
+    saturation = (value - channel_min(rgb)) / np.maximum(value, 1.0)
     outside = (~holes).astype(np.float32)
     if not holes.any() or not outside.any():
         return np.zeros(holes.shape, dtype=bool)
@@ -713,7 +727,7 @@ def highlight_runs(runs: StepRuns, rgb: np.ndarray, holes: np.ndarray, contrast:
     run, pos = run_cells(runs.start, runs.stop)
     if run.size == 0:
         return np.zeros(runs.line.size, dtype=bool)
-    value = np.asarray(rgb).max(axis=2).astype(np.float64)
+    value = channel_max(rgb).astype(np.float64)
     ends = np.maximum(value[runs.line, runs.start - 1], value[runs.line, runs.stop])
     row = runs.line[run]
     # bright enough for a highlight (highlight_pixels' least value) and brighter than both ends: the test on
