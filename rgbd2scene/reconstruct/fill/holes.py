@@ -1004,6 +1004,7 @@ def hole_copies(labels: np.ndarray, free: np.ndarray, copies: int = 3, coverage:
     h, w = labels.shape
     out = np.full(labels.shape, -1, dtype=np.int64)
     room = free.copy()
+    room_flat = room.ravel()  # a view: the writes to room show
     boxes = ndi.find_objects(labels)
     sizes = np.bincount(labels.ravel())
     for k in np.argsort(-sizes[1:], kind="stable") + 1:
@@ -1012,13 +1013,19 @@ def hole_copies(labels: np.ndarray, free: np.ndarray, copies: int = 3, coverage:
             continue
         rows, cols = np.nonzero(labels[box] == k)
         rows, cols = rows + box[0].start, cols + box[1].start
+        flat = rows * w + cols
         bh, bw = box[0].stop - box[0].start + gap, box[1].stop - box[1].start + gap
         placed = 0
         for scale in (1.0, 0.5):
             for dr, dc in COPY_DIRECTIONS:
                 if placed == copies:
                     break
-                r2, c2 = rows + int(round(dr * bh * scale)), cols + int(round(dc * bw * scale))
+                sr, sc = int(round(dr * bh * scale)), int(round(dc * bw * scale))
+                if (0 <= box[0].start + sr and box[0].stop + sr <= h and 0 <= box[1].start + sc
+                        and box[1].stop + sc <= w):  # the whole copy inside the image: its room by flat index
+                    if np.count_nonzero(room_flat[flat + (sr * w + sc)]) < coverage * rows.size:
+                        continue  # (most shifts: the test alone, without the masks below)
+                r2, c2 = rows + sr, cols + sc
                 inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
                 r2, c2 = r2[inside], c2[inside]
                 ok = room[r2, c2]
