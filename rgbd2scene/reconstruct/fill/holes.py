@@ -102,6 +102,7 @@ the step, under which the near surface runs on above and below (:func:`shadow_sp
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -120,6 +121,19 @@ RAYS = tuple(sorted(
 ))
 
 
+def channel_max(rgb: np.ndarray) -> np.ndarray:
+    """(H, W): each pixel's greatest channel of ``rgb`` (H, W, C), the HSV value of an RGB image; ``rgb.max(axis=2)``,
+    which numpy reduces slowly over so short an axis (TUM frame: 8.5 ms against 0.35 ms)."""
+    rgb = np.asarray(rgb)
+    return functools.reduce(np.maximum, (rgb[..., k] for k in range(rgb.shape[2])))
+
+
+def channel_min(rgb: np.ndarray) -> np.ndarray:
+    """(H, W): each pixel's least channel of ``rgb`` (H, W, C); ``rgb.min(axis=2)``, faster (:func:`channel_max`)."""
+    rgb = np.asarray(rgb)
+    return functools.reduce(np.minimum, (rgb[..., k] for k in range(rgb.shape[2])))
+
+
 def valid_depth(depth: np.ndarray) -> np.ndarray:
     """bool (H, W): usable depth, finite and positive."""
     with np.errstate(invalid="ignore"):
@@ -135,14 +149,20 @@ def components(mask: np.ndarray) -> tuple[np.ndarray, int]:
 def reachable(unknown: np.ndarray, known: np.ndarray, eight: bool = False) -> np.ndarray:
     """Unknown pixels whose 4- (or 8-) connected component touches at least one known pixel."""
     st = _EIGHT if eight else _FOUR
-    labels, n = ndi.label(unknown, structure=st)
-    if n == 0:
+    rows = np.flatnonzero(unknown.any(axis=1))
+    if rows.size == 0:
         return unknown.copy()
-    touch = ndi.binary_dilation(known, structure=st) & unknown
+    # on the unknown pixels' bounding box and its neighbours alone (a hole's copies: 0.3 ms against 4 ms)
+    cols = np.flatnonzero(unknown.any(axis=0))
+    box = np.s_[max(rows[0] - 1, 0):rows[-1] + 2, max(cols[0] - 1, 0):cols[-1] + 2]
+    labels, n = ndi.label(unknown[box], structure=st)
+    touch = ndi.binary_dilation(known[box], structure=st) & unknown[box]
     ok = np.zeros(n + 1, dtype=bool)
     ok[np.unique(labels[touch])] = True
     ok[0] = False
-    return ok[labels]
+    out = np.zeros(unknown.shape, dtype=bool)
+    out[box] = ok[labels]
+    return out
 
 
 def image_edge(shape) -> np.ndarray:
@@ -516,8 +536,8 @@ def highlight_pixels(rgb: np.ndarray, holes: np.ndarray, min_value: float = HIGH
     bool (H, W), within ``holes``.
     """
     rgb = np.asarray(rgb)
-    value = rgb.max(axis=2).astype(np.float32)
-    saturation = (value - rgb.min(axis=2)) / np.maximum(value, 1.0)
+    value = channel_max(rgb).astype(np.float32)
+    saturation = (value - channel_min(rgb)) / np.maximum(value, 1.0)
     outside = (~holes).astype(np.float32)
     if not holes.any() or not outside.any():
         return np.zeros(holes.shape, dtype=bool)
@@ -551,10 +571,15 @@ def lights_in_holes(shine: np.ndarray, within: np.ndarray, rgb: np.ndarray, vali
     blobs, n = ndi.label(shine & within, structure=_EIGHT)
     if n == 0:
         return np.zeros(shine.shape, dtype=bool)
-    distance, (rows, cols) = ndi.distance_transform_edt(blobs == 0, return_indices=True)
-    ring = valid & (distance > 0) & (distance <= reach)
-    owner = blobs[rows[ring], cols[ring]]
-    bright = np.asarray(rgb).max(axis=2)[ring] >= HIGHLIGHT_VALUE
+    # the surround lies within the blobs' bounding box widened by the reach: the distances on that crop alone
+    # (TUM frame: 0.3 ms against 10 ms over the image), each ring pixel's nearest blob pixel the same
+    r, c = np.flatnonzero(blobs.any(axis=1)), np.flatnonzero(blobs.any(axis=0))
+    m = math.ceil(reach)
+    box = np.s_[max(r[0] - m, 0):r[-1] + m + 1, max(c[0] - m, 0):c[-1] + m + 1]
+    distance, (rows, cols) = ndi.distance_transform_edt(blobs[box] == 0, return_indices=True)
+    ring = valid[box] & (distance > 0) & (distance <= reach)
+    owner = blobs[box][rows[ring], cols[ring]]
+    bright = channel_max(np.asarray(rgb)[box])[ring] >= HIGHLIGHT_VALUE
     seen = np.bincount(owner, minlength=n + 1)
     dark = (seen > 0) & (np.bincount(owner, weights=bright, minlength=n + 1) < bright_share * seen)
     dark[0] = False
@@ -713,7 +738,7 @@ def highlight_runs(runs: StepRuns, rgb: np.ndarray, holes: np.ndarray, contrast:
     run, pos = run_cells(runs.start, runs.stop)
     if run.size == 0:
         return np.zeros(runs.line.size, dtype=bool)
-    value = np.asarray(rgb).max(axis=2).astype(np.float64)
+    value = channel_max(rgb).astype(np.float64)
     ends = np.maximum(value[runs.line, runs.start - 1], value[runs.line, runs.stop])
     row = runs.line[run]
     # bright enough for a highlight (highlight_pixels' least value) and brighter than both ends: the test on
@@ -979,6 +1004,7 @@ def hole_copies(labels: np.ndarray, free: np.ndarray, copies: int = 3, coverage:
     h, w = labels.shape
     out = np.full(labels.shape, -1, dtype=np.int64)
     room = free.copy()
+    room_flat = room.ravel()  # a view: the writes to room show
     boxes = ndi.find_objects(labels)
     sizes = np.bincount(labels.ravel())
     for k in np.argsort(-sizes[1:], kind="stable") + 1:
@@ -987,13 +1013,19 @@ def hole_copies(labels: np.ndarray, free: np.ndarray, copies: int = 3, coverage:
             continue
         rows, cols = np.nonzero(labels[box] == k)
         rows, cols = rows + box[0].start, cols + box[1].start
+        flat = rows * w + cols
         bh, bw = box[0].stop - box[0].start + gap, box[1].stop - box[1].start + gap
         placed = 0
         for scale in (1.0, 0.5):
             for dr, dc in COPY_DIRECTIONS:
                 if placed == copies:
                     break
-                r2, c2 = rows + int(round(dr * bh * scale)), cols + int(round(dc * bw * scale))
+                sr, sc = int(round(dr * bh * scale)), int(round(dc * bw * scale))
+                if (0 <= box[0].start + sr and box[0].stop + sr <= h and 0 <= box[1].start + sc
+                        and box[1].stop + sc <= w):  # the whole copy inside the image: its room by flat index
+                    if np.count_nonzero(room_flat[flat + (sr * w + sc)]) < coverage * rows.size:
+                        continue  # (most shifts: the test alone, without the masks below)
+                r2, c2 = rows + sr, cols + sc
                 inside = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
                 r2, c2 = r2[inside], c2[inside]
                 ok = room[r2, c2]

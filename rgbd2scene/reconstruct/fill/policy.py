@@ -445,10 +445,6 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     # evidence keeps its fill
     coloured = guided_holes(traits, rgb)
     guided = coloured[1:].any()
-    # a light inside a guided hole (a lamp merged with a wider hole): its colour is the light's, it takes the hole's
-    # thin plate
-    lights = (lights_in_holes(shine.result(), rest & coloured[labels], rgb, valid_depth(work)) if guided
-              else np.zeros(work.shape, dtype=bool))
     uncoloured = (wide & ~lit & ~coloured)[1:].any()
     ahead = {"biharmonic": (rest | edge, across)} if (wide & ~lit)[1:].any() and (edge.any() or uncoloured) else {}
     if guided:
@@ -467,6 +463,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         planar = (rest & (wide & ~lit)[labels]) if guided else None
         plane_fill = None if planar is None else solves.submit(planar_fill, work, rgb, planar, seg_scale=PLANE_SCALE)
         curve_fill = None if planar is None else solves.submit(quadric_fill, work, planar)
+        # a light inside a guided hole (a lamp merged with a wider hole): its colour is the light's, it takes the
+        # hole's thin plate (found while the solves run: no solve started above needs it)
+        lights = (lights_in_holes(shine.result(), rest & coloured[labels], rgb, valid_depth(work)) if guided
+                  else np.zeros(work.shape, dtype=bool))
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves, step=step)
         ways, ways_used, band_jobs = ((np.zeros(work.shape, dtype=int), [], {}) if band_fills is None
                                       else band_fills.result())
