@@ -121,8 +121,12 @@ before then are on the narrower splits.
    ``spec14``: SUN's two ceiling lamps, one lamp's copies erring 0.39-0.49 m (several times its own error) outweighing
    the other's 0.08-0.09 m, which favour the membrane that wins on both; Redwood's sunlit patch, 13766 px
    without a copy, 30.1 mm harmonic as its small holes' copies chose, 23.4 mm biharmonic; tuning split 0.6434 ->
-   0.6393, rows above 1.10 47 -> 44, only specular rows moved). Under white noise both fill from the smoothed rim
-   (5.).
+   0.6393, rows above 1.10 47 -> 44, only specular rows moved). Only where its copies decide it: one fill's error on
+   them less than half the other's (noise-free depth, where the thin plate's is near zero); else it takes the mean
+   of both: on the real captures' highlights the two errors lie 1.0-2.4 times apart, and the ranking picked the
+   worse fill for 15 of the 27 distinct tuning highlights with copies, the mean beating the pick on 18 (TUM's 127 px
+   highlight: thin plate 4.2 mm of the row, membrane 2.2, mean 2.3; session 15, helper ``blob15``, ``fill.md``).
+   Under white noise both fill from the smoothed rim (5.).
 4. **The border band** (shadows in it excepted), per stretch of :data:`BAND_STRETCH` px along its edge
    (:func:`choose_band`): the strip of valid depth just inside each stretch (:func:`band_strips`) is hidden,
    band and strips are filled from the rest with the biharmonic, harmonic and NYU colorization fills (at 1 /
@@ -584,6 +588,7 @@ CANDIDATES: dict[str, tuple[str, ...]] = {
     "harmonic": ("harmonic",),
     "biharmonic": ("biharmonic",),
     "nyu_colorization+guided_thin_plate": ("nyu_colorization", "guided_thin_plate"),
+    "harmonic+biharmonic": ("harmonic", "biharmonic"),
 }
 NAMES = list(CANDIDATES)
 #: The fill of a colour-guided hole (module docstring, 2.), then planes where the capture shows them: no choice by
@@ -604,6 +609,10 @@ EDGE_REACH = 10
 NYU_REACH = 16
 #: Copies lie this many px away from any invalid pixel: a copy must be enclosed by valid depth, as the hole is.
 COPY_CLEARANCE = 6
+#: A wide highlight's own copies pick one smooth fill only where its error on them is less than 1 / this of the
+#: other's (noise-free depth: the thin plate's is near zero); else it takes the mean of both (the real captures'
+#: highlights: the errors 1.0-2.4 times apart, the pick the worse fill for 15 of 27, ``fill.md`` session 15).
+COPY_DECISIVE = 2.0
 #: The rim is smoothed for the :data:`SMOOTH` fills only where neighbouring pixels' noise correlates less than this
 #: (:func:`~rgbd2scene.reconstruct.fill.planes.noise_correlation`: white noise about 0, the benchmark's real captures
 #: 0.56 and more, the tissue sample's simulated noise 0.26; module docstring, 5.).
@@ -761,7 +770,8 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     them has a whole copy, over copies that lie 60 % on pixels 2 px from any invalid one (a thin ring round a
     hole beyond range has no room for a whole copy); harmonic where none fits at all. A copy that bridges a depth
     step its hole does not is no evidence (:func:`_copy_errors`). A wide highlight takes
-    the smooth fill with the least error over its own copies, the biharmonic fill where it has none. A
+    the smooth fill with the least error over its own copies where that error is less than 1 /
+    :data:`COPY_DECISIVE` of the other's, else the mean of both, and the biharmonic fill where it has no copy. A
     colour-guided hole (wide or across a step, not a highlight, with RGB) takes
     :data:`GUIDED` (the mean of the NYU colorization and the colour-guided thin plate); without RGB, the
     biharmonic fill.
@@ -801,6 +811,10 @@ def choose_per_hole(depth: np.ndarray, rgb: np.ndarray | None, labels: np.ndarra
     # wide hole neither lit nor colour-guided
     wide_lit = smooth & traits.wide
     own = np.array([NAMES.index(name) for name in SMOOTH])[err.argmin(axis=1)]
+    with np.errstate(invalid="ignore"):  # no copy: inf / inf, not decisive (and not used below)
+        decisive = err.max(axis=1) > COPY_DECISIVE * err.min(axis=1)
+    # copies that rank the fills by less than that are the noise's and the copies' own surfaces': both fills
+    own[~decisive] = NAMES.index("harmonic+biharmonic")
     choice[wide_lit & (npx > 0)] = own[wide_lit & (npx > 0)]
     choice[wide_lit & (npx == 0)] = NAMES.index("biharmonic")
     return choice
