@@ -26,7 +26,14 @@ from rgbd2scene.reconstruct.fill import (
     shadow_pixels,
     step_runs,
 )
-from rgbd2scene.reconstruct.fill.holes import STEP, components, highlight_pixels, hole_copies, lights_in_holes
+from rgbd2scene.reconstruct.fill.holes import (
+    STEP,
+    components,
+    direct_steps,
+    highlight_pixels,
+    hole_copies,
+    lights_in_holes,
+)
 from rgbd2scene.reconstruct.fill.planes import NOISE_FLOOR, noise_correlation, noise_free, sensor_noise
 from rgbd2scene.reconstruct.fill.policy import (
     BAND_STRETCH,
@@ -265,10 +272,16 @@ def test_a_dropout_on_the_near_rim_beside_a_shadow_is_not_shadow():
 def test_a_hole_across_a_step_keeps_the_near_surface_where_it_runs_on_above_and_below():
     """A hole lying across the box's outline (a dropout, a hole mask laid on another capture), its rows no
     wider than the shadow there: the box runs on above and below its near part, in the box's colour, where a
-    shadow's near end is the outline itself. That part keeps the box's depth, not the far wall's 1.2 m more."""
+    shadow's near end is the outline itself. That part keeps the box's depth, not the far wall's 1.2 m more.
+    Along the rest of the outline the sensor casts its shadow (a capture that shows its steps, casting none, has
+    none: ``test_a_capture_that_shows_its_steps_casts_no_shadows``)."""
     truth, rgb = step_scene()
     width = shadow_width(truth, 90, 89, 0.075)
+    cast = np.zeros((H, W), bool)
+    cast[20:100, 90 - width:90] = True
+    cast[50:62] = False
     depth = truth.copy()
+    depth[cast] = np.nan
     hole = np.zeros((H, W), bool)
     hole[50:61, 90 - width + 4:94] = True  # 1 px of wall, 4 of box: no wider than the shadow there
     hole[61, 90 - width + 4:92] = True  # 2 px of box below them: the near part runs on
@@ -280,9 +293,35 @@ def test_a_hole_across_a_step_keeps_the_near_surface_where_it_runs_on_above_and_
     assert np.abs(res.depth[hole] - truth[hole]).max() < 0.02
     # 2 px of box (3 of wall), as an outline ragged by 1-2 px leaves beside a shadow (NEAR_PART_MIN): a shadow
     depth = truth.copy()
+    depth[cast] = np.nan
     depth[50:61, 90 - width + 2:92] = np.nan
     dent = step_runs(depth, ~np.isfinite(depth))
     assert shadow_pixels(dent, depth, FX, KINECT_V1.shadow_baselines(), rgb=rgb)[50:61, 90 - width + 2:92].all()
+
+
+def test_a_capture_that_shows_its_steps_casts_no_shadows():
+    """A rendered frame or a sensor without the model's second viewpoint shows the far wall right beside the box's
+    outline, where a Kinect's projector casts its shadow, on all but a few rows: there a hole across the outline, its
+    rows no wider than the model's shadow, is a hole (the per-hole choice fills it), not a shadow filled from the far
+    end; the Redwood frames' transplanted holes were (tuning: redwood0 transplant 5 21.2 -> 16.1 mm)."""
+    truth, rgb = step_scene()
+    width = shadow_width(truth, 90, 89, 0.075)
+    depth = truth.copy()
+    hole = np.zeros((H, W), bool)
+    hole[50:58, 90 - width + 1:91] = True  # as wide as the shadow: 1 px of box, the rest wall
+    depth[hole] = np.nan
+    runs = step_runs(depth, hole)
+    assert (runs.axis == 0).sum() == 8
+    baselines = KINECT_V1.shadow_baselines()
+    assert direct_steps(depth, FX, baselines) == 72  # the box's other rows, the wall beside it
+    assert not shadow_pixels(runs, depth, FX, baselines, rgb=rgb).any()
+    assert not fill_depth(depth, rgb, "auto", sensor=KINECT_V1).parts["shadow"].any()
+    # the same hole where the sensor casts its shadow along the rest of the outline: a shadow
+    depth[20:50, 90 - width:90] = np.nan
+    depth[58:100, 90 - width:90] = np.nan
+    runs = step_runs(depth, ~np.isfinite(depth))
+    assert direct_steps(depth, FX, baselines) == 0
+    assert shadow_pixels(runs, depth, FX, baselines, rgb=rgb)[50:58, 90 - width + 1:90].all()
 
 
 def test_a_slanted_surface_is_not_a_step():
