@@ -613,6 +613,18 @@ def test_auto_chooses_the_bands_fill_per_stretch_on_the_strip_inside_it():
     assert err["auto"][slant].mean() < 0.5 * err["harmonic"][slant].mean()
 
 
+def _redwood_holes_on(truth: np.ndarray, shared_samples) -> tuple[np.ndarray, np.ndarray]:
+    """``truth`` with the Redwood frame 0's holes, turned half a turn, hidden on it (as the benchmark's
+    transplant rows lay them), and the hidden pixels."""
+    from rgbd2scene.capture.readers import read_depth
+
+    redwood = read_depth(shared_samples / "redwood_livingroom1_5frames_open3d" / "depth" / "00000.png", 1000)[0]
+    hidden = ~np.isfinite(redwood[::-1, ::-1]) & np.isfinite(truth)
+    depth = truth.copy()
+    depth[hidden] = np.nan
+    return depth, hidden
+
+
 def test_the_bands_strips_are_scored_in_inverse_depth(shared_samples):
     """The TUM frame with the Redwood frame's holes (turned half a turn) hidden on it, as the benchmark's
     transplant rows lay them (tuning row TUM transplant 7): scored in metres, the strips chose fills whose band
@@ -622,10 +634,7 @@ def test_the_bands_strips_are_scored_in_inverse_depth(shared_samples):
     folder = shared_samples / "tum_office_frame_open3d"
     truth = read_depth(folder / "TUM_depth.png", 5000)[0]
     rgb = read_rgb(folder / "TUM_color.png")
-    redwood = read_depth(shared_samples / "redwood_livingroom1_5frames_open3d" / "depth" / "00000.png", 1000)[0]
-    hidden = ~np.isfinite(redwood[::-1, ::-1]) & np.isfinite(truth)
-    depth = truth.copy()
-    depth[hidden] = np.nan
+    depth, hidden = _redwood_holes_on(truth, shared_samples)
     res = fill_depth(depth, rgb, "auto")
     band = res.parts["band"] & hidden
     assert band.sum() > 5000
@@ -642,10 +651,7 @@ def test_the_band_takes_the_membrane_only_where_its_strip_says_so_clearly(shared
     from rgbd2scene.capture.readers import read_depth
 
     truth = read_depth(shared_samples / "nyu_sun_raw_frames_open3d" / "NYU_depth.pgm")[0]
-    redwood = read_depth(shared_samples / "redwood_livingroom1_5frames_open3d" / "depth" / "00000.png", 1000)[0]
-    hidden = ~np.isfinite(redwood[::-1, ::-1]) & np.isfinite(truth)
-    depth = truth.copy()
-    depth[hidden] = np.nan
+    depth, hidden = _redwood_holes_on(truth, shared_samples)
     res = fill_depth(depth, None, "auto")
     band = res.parts["band"] & hidden
     assert band.sum() > 20000
