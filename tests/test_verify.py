@@ -408,3 +408,20 @@ def test_a_per_frame_oracle_replaces_the_static_mesh(dataset, tmp_path):
     assert report.mesh == SlidingTissue.source
     with pytest.raises(ValueError, match="not both"):
         verify_dataset(d, progress=False, oracle=SlidingTissue(), mesh_path=dataset.parent / "mesh.ply")
+
+
+def test_occlusion_reference_leaves_points_between_samples_across_an_edge_unjudged():
+    """A far wall, its left half behind a near wall (depth step between columns 3 and 4 of camera b): a far
+    point projecting between the two columns has a matching sample and a nearer one, and which side of the
+    edge it falls on is not in the samples: neither clearly visible nor clearly hidden. Off the edge, far
+    points are clearly visible (right) or hidden (left); a point projecting outside is hidden."""
+    from rgbd2scene.verify.checks.occlusion import occlusion_reference
+
+    camera = Camera.pinhole(np.array([[10.0, 0, 3.5], [0, 10.0, 3.5], [0, 0, 1]]), 8, 8)
+    depth_b = np.where(np.arange(8) < 4, 0.5, 1.0)[None, :].repeat(8, axis=0)
+    u = np.array([1.0, 3.5, 6.0, 20.0])  # behind the near wall, between the columns, in the open, outside
+    points = np.full((8, 8, 3), np.nan)  # (H, W, 3) of camera b's size, as a frame's surface points are
+    points[0, :4] = np.stack([(u - 3.5) / 10.0, np.zeros(4), np.ones(4)], axis=-1)
+    visible, hidden = occlusion_reference(points, camera, np.eye(4), depth_b, 0.01)
+    assert visible[0, :4].tolist() == [False, False, True, False] and not visible[1:].any()
+    assert hidden[0, :4].tolist() == [True, False, False, True] and not hidden[1:].any()

@@ -65,7 +65,7 @@ class Tolerances:
     lr_median_px: float = 0.005
     occlusion_rel: float = 0.01  # relative depth difference that separates visible from hidden
     id_mismatch: float = 0.0  # fraction of pixels off id edges whose instance id differs from the scene's
-    occlusion_disagree: float = 0.01  # fraction of surface pixels where occluded_* contradicts the geometry
+    occlusion_disagree: float = 0.005  # fraction of surface pixels where occluded_* contradicts the geometry
     coverage_warn: float = 0.95
     normal_unit: float = 1e-3
     normal_facing: float = 1e-3  # fraction of pixels whose normal faces away from the camera

@@ -2,9 +2,12 @@
 
 Each surface point is moved into the next / previous frame of the same eye (with the scene model as oracle:
 followed with its moving or deforming surface; otherwise with the camera only, static surface only) and
-looked up in that frame's rendered depth: where the depth there matches, the point is clearly visible; where
-every neighbouring depth there is clearly nearer, or the point leaves the image, it is clearly hidden. A
-flag that contradicts a clear case counts (the ambiguous cases in between are not judged).
+looked up in that frame's rendered depth at the four pixel centres around it: where one matches and none is
+clearly nearer, the point is clearly visible; where every one is clearly nearer, or the point leaves the image,
+it is clearly hidden. A flag that contradicts a clear case counts. The cases in between are not judged: the
+four centres straddle an occluding edge there, and depth samples alone don't tell on which side of the edge
+a point between them falls (judged, they were a one-pixel band of false contradictions along every edge that
+moves over the surface).
 """
 
 from __future__ import annotations
@@ -50,6 +53,9 @@ def occlusion_reference(points: np.ndarray, camera: Camera, T_b: np.ndarray, dep
     """Pixels whose surface point (at its position in frame b) is clearly visible / clearly hidden (or
     outside) in camera b.
 
+    Clearly visible: one of camera b's four depth samples around the point's projection matches its depth and
+    none is clearly nearer. Clearly hidden: all four are clearly nearer, or the point projects outside.
+
     Parameters
     ----------
     points : (H, W, 3) world positions in frame b of the points under each pixel, NaN where no surface.
@@ -74,5 +80,5 @@ def occlusion_reference(points: np.ndarray, camera: Camera, T_b: np.ndarray, dep
                    for dv in (0, 1) for du in (0, 1)], axis=-1).astype(np.float64)
     with np.errstate(invalid="ignore"):
         close = np.any(np.abs(zs - z[..., None]) <= rel * z[..., None], axis=-1)
-        hidden = np.all(zs < (z * (1 - rel))[..., None], axis=-1)  # NaN compares False: not hidden
-    return inside & close, outside | (inside & hidden & ~close)
+        nearer = zs < (z * (1 - rel))[..., None]  # NaN compares False: nothing there hides the point
+    return inside & close & ~nearer.any(axis=-1), outside | (inside & nearer.all(axis=-1))
