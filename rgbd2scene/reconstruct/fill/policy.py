@@ -135,6 +135,10 @@ before then are on the narrower splits.
    empty. In inverse depth, the space the fills are solved in: in metres an error of the same size in inverse
    depth grows with the square of the depth, so a strip's few far pixels decided for the whole stretch
    (session 11, ``fill.md``: tuning split 0.680 -> 0.677, held-out 0.706 -> 0.706 and rows above 1.10 9 -> 6).
+   The membrane (harmonic fill) only where its strip error is below the other candidates' by
+   :data:`BAND_MEMBRANE_MARGIN` (session 15, helper ``band15``): a strip's error favoured it narrowly where the
+   band's own pixels take the thin plate (the NYU frame, no RGB, under transplanted bands 32 px wide: tuning NYU
+   transplant 5 band 373 mm against the biharmonic fill's 307, with the margin 309).
    A band is an extrapolation: which continuation fits (a thin plate carrying the rim's slope on, a membrane
    levelling off where the rim is noisy, the colour where the band holds another surface) is what the surface
    just inside it shows. The thin plate is solved jointly with the holes that take a thin plate (a wide band
@@ -834,6 +838,9 @@ BAND_STRETCH = 64
 #: (geometric mean 0.756 against 0.755, measured with the band's fills solved after the holes') and cost 1 s more; at
 #: quarter resolution (session 10) 0.14 s CPU less on the TUM frame, but held-out 0.783 -> 0.786, tuning 0.753 -> 0.753.
 BAND_SCALE = 2
+#: A stretch takes the membrane (harmonic fill) only where its strip error is below the other candidates' by this
+#: factor: a membrane levels off at the cut, and a strip's error favours it where the band's own pixels do not.
+BAND_MEMBRANE_MARGIN = 1.2
 
 
 def _edge_view(a: np.ndarray, transpose: bool, flip: bool) -> np.ndarray:
@@ -919,6 +926,8 @@ def choose_band(work, rgb, edge, band, border_width, pool: Executor | None = Non
     for k, name in enumerate(names):
         est = 1.0 / np.mean([fills[b][test] for b in BAND_CANDIDATES[name]], axis=0).astype(np.float64)
         err[:, k] = np.bincount(owner, weights=np.where(np.isfinite(est), np.abs(est - truth), miss), minlength=n)
+    # the membrane only where it beats the others clearly (:data:`BAND_MEMBRANE_MARGIN`)
+    err[:, names.index("harmonic")] *= BAND_MEMBRANE_MARGIN
     choice = err.argmin(axis=1)  # argmin keeps the first (biharmonic) on a tie and where no strip was scored
     choice[0] = 0
     return choice[seg_band]
