@@ -359,6 +359,12 @@ def test_near_depth_gets_no_projector_shadows_and_scene_json_says_why(sample_mes
     assert records["near"]["fill"]["settings"]["sensor"]["kind"] == "none"
     assert records["near_given"]["depth_sensor"]["source"] == "given"
     assert records["near_given"]["fill"]["settings"]["sensor"]["kind"] == "structured_light"
+    # and whether the fill took the model's shadows from the capture, and why
+    assert near["shadows"] == {"cast": False, "runs": 0, "direct_steps": -1,
+                               "reason": "the sensor assumed casts no shadows"}
+    for name in ("room", "near_given"):
+        shadows = records[name]["depth_sensor"]["shadows"]
+        assert shadows == records[name]["fill"]["stats"]["shadows"] and set(shadows) >= {"cast", "reason"}, name
     # the near capture's filled depth is the fill without a shadow prior, and differs from the fill with one
     depth, _, _ = read_depth(BUNDLED_SAMPLE / "depth.png", 8000)
     rgb = read_rgb(BUNDLED_SAMPLE / "rgb.png")

@@ -315,13 +315,23 @@ def test_a_capture_that_shows_its_steps_casts_no_shadows():
     baselines = KINECT_V1.shadow_baselines()
     assert direct_steps(depth, FX, baselines) == 72  # the box's other rows, the wall beside it
     assert not shadow_pixels(runs, depth, FX, baselines, rgb=rgb).any()
-    assert not fill_depth(depth, rgb, "auto", sensor=KINECT_V1).parts["shadow"].any()
+    res = fill_depth(depth, rgb, "auto", sensor=KINECT_V1)
+    assert not res.parts["shadow"].any()
+    # the record (scene.json's depth_sensor) says the sensor model's shadows were not taken, and why
+    record = res.stats["shadows"]
+    assert record["cast"] is False and record["runs"] == 8 and record["direct_steps"] == 72
+    assert "shows 72 depth steps directly" in record["reason"]
     # the same hole where the sensor casts its shadow along the rest of the outline: a shadow
     depth[20:50, 90 - width:90] = np.nan
     depth[58:100, 90 - width:90] = np.nan
     runs = step_runs(depth, ~np.isfinite(depth))
     assert direct_steps(depth, FX, baselines) == 0
     assert shadow_pixels(runs, depth, FX, baselines, rgb=rgb)[50:58, 90 - width + 1:90].all()
+    record = fill_depth(depth, rgb, "auto", sensor=KINECT_V1).stats["shadows"]
+    assert record["cast"] is True and record["direct_steps"] == 0 and record["runs"] >= 8
+    record = fill_depth(depth, rgb, "auto", sensor=get_sensor("none")).stats["shadows"]
+    assert record == {"cast": False, "runs": 0, "direct_steps": -1, "reason": "the sensor assumed casts no shadows"}
+    assert fill_depth(depth, rgb, "biharmonic", sensor=KINECT_V1).stats["shadows"]["cast"] is False
 
 
 def test_a_slanted_surface_is_not_a_step():

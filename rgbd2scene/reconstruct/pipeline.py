@@ -85,7 +85,8 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     The mesh is built in the capture camera's frame and then placed in the world frame by
     ``capture.T_world_capture``; pixels outside ``capture.image_mask`` stay empty. The depth sensor (for the
     fill's shadow prior) is ``options.sensor``, else inferred from the capture
-    (:func:`rgbd2scene.capture.sensors.infer_sensor`); ``sections["depth_sensor"]`` records which and why.
+    (:func:`rgbd2scene.capture.sensors.infer_sensor`); ``sections["depth_sensor"]`` records which and why, and
+    under ``"shadows"`` whether the fill took shadows from this capture and why (the fill's statistics).
     """
     options = options or MeshOptions()
     stereo = capture.depth_format == "stereo"
@@ -128,4 +129,4 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     stats = {"fill": filled.stats, "texture": {"highlights": options.highlights, **highlight_stats(highlights)},
              "mesh": mesh_stats, "smooth": smooth_stats}
     return Reconstruction(capture, options, filled, mesh, highlights, stats, timings,
-                          sections={"depth_sensor": choice.to_dict()})
+                          sections={"depth_sensor": {**choice.to_dict(), "shadows": filled.stats["shadows"]}})

@@ -779,11 +779,52 @@ def direct_steps(depth: np.ndarray, fx: float, baselines: tuple[float, float], m
     return int(count)
 
 
+@dataclass(frozen=True)
+class ShadowEvidence:
+    """What a capture says of its sensor's occlusion shadows (:func:`shadow_runs`), for the record (the fill's
+    statistics, scene.json's ``depth_sensor``): the sensor model may cast shadows where the capture shows none.
+
+    Attributes
+    ----------
+    modelled : the sensor model casts shadows (a baseline above 0).
+    runs : horizontal hole runs across a depth step no wider than the model's shadow there (+ slack).
+    seen : of these, the runs where that shadow is at least :data:`SEEN_WIDTH` px wide.
+    direct : the steps the capture shows directly where the shadow would hide the far surface
+        (:func:`direct_steps`); counted only where some run is a candidate, else -1.
+    """
+
+    modelled: bool
+    runs: int = 0
+    seen: int = 0
+    direct: int = -1
+
+    @property
+    def cast(self) -> bool:
+        """Shadows are taken from this capture (the runs then still pass the colour and shape tests)."""
+        return self.runs > 0 and not self.direct > DIRECT_STEPS * self.seen
+
+    def reason(self) -> str:
+        if not self.modelled:
+            return "the sensor assumed casts no shadows"
+        if not self.runs:
+            return "no hole run across a depth step is as narrow as the sensor's shadow there"
+        if not self.cast:
+            return (f"the capture shows {self.direct} depth steps directly where the sensor's shadow would hide the "
+                    f"far surface, more than {DIRECT_STEPS:g} times the {self.seen} hole runs as wide as one: it "
+                    "casts no shadows here")
+        return (f"{self.runs} hole runs across depth steps as narrow as the sensor's shadow there (the capture shows "
+                f"{self.direct} steps directly, against {self.seen} runs as wide as a shadow)")
+
+    def to_dict(self) -> dict:
+        return {"cast": self.cast, "runs": self.runs, "direct_steps": self.direct, "reason": self.reason()}
+
+
 def shadow_runs(
     runs: StepRuns, depth: np.ndarray, fx: float, baselines: tuple[float, float], slack_px: float = 1.0,
     rgb: np.ndarray | None = None,
-) -> tuple[StepRuns, np.ndarray]:
-    """The horizontal step runs no wider than an occlusion shadow can be there, and that width (px).
+) -> tuple[StepRuns, np.ndarray, ShadowEvidence]:
+    """The horizontal step runs no wider than an occlusion shadow can be there, that width (px), and what the
+    capture said of its shadows.
 
     A second viewpoint (projector, matching imager or colour camera) a baseline b to the right of the
     depth camera leaves a shadow fx * b * (1/z_near - 1/z_far) px wide on the far surface, left of the
@@ -810,7 +851,8 @@ def shadow_runs(
 
     Returns
     -------
-    The kept runs and, per kept run, the width of the shadow the sensor casts there (px).
+    The kept runs, per kept run the width of the shadow the sensor casts there (px), and the
+    :class:`ShadowEvidence`.
     """
     b = np.where(runs.near_first, float(baselines[1]), float(baselines[0]))
     horizontal = (runs.axis == 0) & (b > 0)
@@ -818,12 +860,14 @@ def shadow_runs(
     zn, zf = sub.end_depths(depth)
     width = fx * b[horizontal] * (1.0 / zn - 1.0 / zf)
     keep = sub.length <= width + slack_px
-    seen = np.count_nonzero(keep & (width >= SEEN_WIDTH))
-    if keep.any() and direct_steps(depth, fx, baselines) > DIRECT_STEPS * seen:
-        keep[:] = False  # the capture shows its steps where a shadow would hide them: its sensor casts none
+    direct = direct_steps(depth, fx, baselines) if keep.any() else -1
+    evidence = ShadowEvidence(max(baselines) > 0, int(np.count_nonzero(keep)),
+                              int(np.count_nonzero(keep & (width >= SEEN_WIDTH))), direct)
+    if not evidence.cast:
+        keep[:] = False  # e.g. the capture shows its steps where a shadow would hide them: its sensor casts none
     if rgb is not None and keep.any():
         keep[keep] = ~highlight_runs(sub.subset(keep), rgb, ~valid_depth(depth))
-    return sub.subset(keep), width[keep]
+    return sub.subset(keep), width[keep], evidence
 
 
 #: How far (px) above and below a shadow run's pixel :func:`shadow_split` looks for the surface round it.
@@ -1004,7 +1048,7 @@ def shadow_pixels(
     -------
     bool (H, W)
     """
-    kept, width = shadow_runs(runs, depth, fx, baselines, slack_px, rgb)
+    kept, width, _ = shadow_runs(runs, depth, fx, baselines, slack_px, rgb)
     return shadow_split(kept, width, depth, rgb)[0]
 
 

@@ -341,6 +341,8 @@ def fill_depth(
     used = method
     counts: dict[str, int] = {}
     shadow = np.zeros(depth.shape, dtype=bool)
+    shadow_record = {"cast": False, "reason": f"the {method} fill tells no shadows apart" if method != "auto"
+                     else "no hole inside the border band"}
     if method == "none" or not valid.any() or not interior.any():
         out = work.copy()
     elif method == "inpaint":
@@ -354,9 +356,10 @@ def fill_depth(
     elif method == "background":
         out = fill_background(work, interior, step=step)
     else:
-        out, counts, shadow = _auto(work, rgb, shine, todo, band, step, fx, sensor.shadow_baselines(),
+        out, counts, shadow, shadow_record = _auto(work, rgb, shine, todo, band, step, fx, sensor.shadow_baselines(),
                                     small_radius, copies, border_width)
         used = "auto: " + ("+".join(counts) if counts else "nothing to fill")
+        shadow_record = shadow_record.to_dict()
     # the sensor's band, and holes only the band separates from the surface: the filled surface extended
     rest = todo & np.isnan(out) if method != "none" and band.any() else None
     if rest is not None and rest.any():
@@ -383,6 +386,7 @@ def fill_depth(
         "n_holes": components(todo)[1],
         **holes.stats(),
         "auto_pixels": counts,
+        "shadows": shadow_record,
         "classify_seconds": round(classify_s, 4),
         "seconds": round(time.perf_counter() - t0, 4),
     }
@@ -406,12 +410,13 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     left to the caller. ``shine``: the future of the invalid pixels' highlights
     (:func:`~rgbd2scene.reconstruct.fill.holes.highlight_pixels`), None without RGB.
 
-    Returns the filled depth, the number of pixels each fill filled and the shadow pixels.
+    Returns the filled depth, the number of pixels each fill filled, the shadow pixels and what the capture said of
+    its shadows (:class:`~rgbd2scene.reconstruct.fill.holes.ShadowEvidence`).
     """
     out = work.copy()
     counts: dict[str, int] = {}
     runs = step_runs(work, todo, step)
-    kept, width = shadow_runs(runs, work, fx, baselines, rgb=rgb)
+    kept, width, shadow_record = shadow_runs(runs, work, fx, baselines, rgb=rgb)
     if rgb is None and kept.line.size:  # no colour to confirm a shadow: its shape must
         shaped = shadow_shaped(kept, todo)
         kept, width = kept.subset(shaped), width[shaped]
@@ -427,7 +432,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         shadow |= rim
     rest = todo & ~band & ~shadow
     if not rest.any():
-        return out, counts, shadow
+        return out, counts, shadow, shadow_record
     labels, n = components(rest)
     stepped = np.zeros(n + 1, dtype=bool)
     stepped[labels[runs.pixels(work.shape) & rest]] = True
@@ -526,7 +531,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills["band:" + b][sel] for b in parts], axis=0)
         for b in parts:
             counts[b] = counts.get(b, 0) + int(sel.sum())
-    return out, counts, shadow
+    return out, counts, shadow, shadow_record
 
 
 #: Without RGB, a stepped hole whose thin plate lies on its rim's depth bound over more than this share of its pixels
