@@ -144,6 +144,7 @@ CORRUPTIONS = {
     "nan_to_zero": ("left", "depth", lambda a: np.nan_to_num(a, nan=0.0), "schema"),
     "flow_nan_to_zero": ("left", "flow_forward", lambda a: np.nan_to_num(a, nan=0.0), "schema"),
     "occlusion_inverted": ("left", "occluded_forward", lambda a: ~a, "occlusion"),
+    "occlusion_one_px_off": ("left", "occluded_forward", lambda a: np.roll(a, 1, axis=1), "occlusion"),
 }
 
 
