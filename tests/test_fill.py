@@ -299,6 +299,29 @@ def test_a_hole_across_a_step_keeps_the_near_surface_where_it_runs_on_above_and_
     assert shadow_pixels(dent, depth, FX, KINECT_V1.shadow_baselines(), rgb=rgb)[50:61, 90 - width + 2:92].all()
 
 
+def test_a_tall_hole_across_a_step_keeps_the_near_surface_where_it_runs_on_above_it():
+    """A hole across the box's outline, its rows no wider than the shadow there, that runs on past the box's
+    lower corner to the image's edge (a hole mask laid on another capture: SUN frames under NYU's holes): below
+    its box part no valid pixel is left in the column, above it the box runs on. A side with nothing valid does
+    not speak; the far wall on neither side and the box on one, in the box's colour, make the near part, which
+    keeps the box's depth, not the far wall's 1.1 m more."""
+    truth, rgb = step_scene()
+    width = shadow_width(truth, 90, 89, 0.075)
+    depth = truth.copy()
+    depth[20:100, 88:90] = np.nan  # the sensor's shadow along the outline, narrower than the model's (as SUN's)
+    hole = np.zeros((H, W), bool)
+    hole[50:, 88:93] = True  # the shadow's 2 px and 3 of box: no wider than the model's shadow there
+    depth[hole] = np.nan
+    runs = step_runs(depth, ~np.isfinite(depth))
+    assert width >= 5 and (runs.length[(runs.line >= 50) & (runs.line < 100)] == 5).all()
+    sh = shadow_pixels(runs, depth, FX, KINECT_V1.shadow_baselines(), rgb=rgb)
+    assert sh[50:100, 88:90].all()  # the shadow
+    assert not sh[50:100, 90:93].any()  # the box
+    res = fill_depth(depth, rgb, "auto", sensor=KINECT_V1)
+    box = hole & (truth < 1.5)
+    assert np.abs(res.depth[box] - truth[box]).max() < 0.02
+
+
 def test_a_capture_that_shows_its_steps_casts_no_shadows():
     """A rendered frame or a sensor without the model's second viewpoint shows the far wall right beside the box's
     outline, where a Kinect's projector casts its shadow, on all but a few rows: there a hole across the outline, its

@@ -870,9 +870,11 @@ def shadow_runs(
     return sub.subset(keep), width[keep], evidence
 
 
-#: How far (px) above and below a shadow run's pixel :func:`shadow_split` looks for the surface round it.
-SURFACE_REACH = 20
-#: The fewest pixels from a run's near end that, each with the near surface above and below it, make a near part
+#: How far (px) above and below a shadow run's pixel :func:`shadow_split` looks for the surface round it: holes laid
+#: across an outline run on for tens of rows, and a side with no valid pixel within reach does not speak (the farther
+#: it looks, the fewer sides are silent).
+SURFACE_REACH = 60
+#: The fewest pixels from a run's near end that, each with the near surface beside it in its column, make a near part
 #: of the run (:func:`shadow_split`): fewer are the ragged outline of the near surface.
 NEAR_PART_MIN = 3
 
@@ -917,9 +919,12 @@ def shadow_split(runs: StepRuns, width: np.ndarray, depth: np.ndarray, rgb: np.n
     there the near surface runs on above and below the hole, where a shadow, a band beside the near
     surface's outline, has the far surface or more shadow (the outline runs on beside it). With ``rgb``,
     the pixels from the near end on (never the one next to the far end) whose nearest valid pixels above
-    and below (within :data:`SURFACE_REACH` px) both lie on the near surface (inverse depth nearer the near
-    end's than the far end's) and whose colour is nearer the near surface's (the mean of the 4 valid pixels
-    beyond the near end) than the far surface's (the same beyond the far end) are the near surface, when
+    and below (within :data:`SURFACE_REACH` px) lie on the near surface (inverse depth nearer the near
+    end's than the far end's), both of them or one where the other side has no valid pixel within reach
+    (session 16: a side that is all hole, a tall hole laid across the outline or the image's edge, does
+    not speak; the far surface on either side still rules a pixel out), and whose colour is nearer the
+    near surface's (the mean of the 4 valid pixels beyond the near end) than the far surface's (the same
+    beyond the far end) are the near surface, when
     at least :data:`NEAR_PART_MIN` of them follow each other from the near end, or fewer where a run in the
     next row up or down, on the same side and overlapping, has that many: a shadow's near end is the
     outline, which is ragged by 1-2 px in the captures (on the benchmark's simulated shadows such pixels
@@ -965,7 +970,12 @@ def _near_part(runs, depth, colour, run, rows, cols, near_col, far_col, far_end)
             return np.abs(inv - near_inv) < np.abs(inv - far_inv)  # False where NaN: no pixel within reach
 
     above, below = vertical_neighbours(depth, rows, cols)
-    flag = on_near(1.0 / above) & on_near(1.0 / below) & (far_end > 0)
+    near_above, near_below = on_near(1.0 / above), on_near(1.0 / below)
+    # a side with no valid pixel within reach (a tall hole, the image's edge) does not speak: the near surface on
+    # one side and the far surface on neither is enough
+    far_above = valid_depth(above) & ~near_above
+    far_below = valid_depth(below) & ~near_below
+    flag = (near_above | near_below) & ~far_above & ~far_below & (far_end > 0)
     if not flag.any():
         return flag
     outward = np.where(runs.near_first[run], -1, 1)  # away from the run at its near end
