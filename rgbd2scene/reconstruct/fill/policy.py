@@ -51,7 +51,13 @@ before then are on the narrower splits.
    it does not carry one surface's slope across an object's outline as the plain biharmonic fill does; the
    colorization follows the colour too but levels slopes off. The guided thin plate is clipped to each
    hole's rim depth range (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`): a part of a hole that
-   colour edges cut loose from its rim is a plate with free edges and can overshoot. **Planes** then
+   colour edges cut loose from its rim is a plate with free edges and can overshoot. Where the colour leaves the
+   guided thin plate on the plain one (:func:`agreeing_holes`: their mean difference over the hole under
+   :data:`AGREE` of the guided thin plate's from NYU's fill), it shows nothing of the hole's shape, and NYU's fill,
+   levelling the slope both thin plates continue, only pulls the mean off: the hole takes the plain thin plate
+   (session 16, helper ``blob16``: Redwood's flat-coloured discs on sloped walls, a 2166 px one 80.9 mm in the mean,
+   42.0 in the thin plate; tuning split 0.6245 -> 0.6225, rows above 1.10
+   24 -> 24, no row up by more than 0.2 %; held-out 0.6209 -> 0.6197, 32 -> 31). **Planes** then
    replace that fill where the capture shows a plane
    (:func:`~rgbd2scene.reconstruct.fill.planes.planar_fill`): the colour image round the guided holes is
    cut into segments (Felzenszwalb, at 1 / :data:`PLANE_SCALE` resolution), each segment a hole cuts gets
@@ -454,12 +460,13 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     # the thin plate of holes and band and the guided holes' fills (NYU colorization, colour-guided thin plate) are
     # the longest solves, and their inputs are known before any evidence: they start first, beside the evidence's
     # solves, where the rule's own choice (before the evidence) takes them (a guided hole's mean and the band's
-    # thin plate beside it; the thin plate for a wide hole without RGB or a plain one); a result is used only if the
-    # evidence keeps its fill
+    # thin plate beside it; the thin plate for a wide hole without RGB or a plain one, and for the guided holes'
+    # evidence, :func:`agreeing_holes`); a result is used only if the evidence keeps its fill
     coloured = guided_holes(traits, rgb)
     guided = coloured[1:].any()
     uncoloured = (wide & ~lit & ~coloured)[1:].any()
-    ahead = {"biharmonic": (rest | edge, across)} if (wide & ~lit)[1:].any() and (edge.any() or uncoloured) else {}
+    ahead = {"biharmonic": (rest | edge, across)} if (wide & ~lit)[1:].any() and (edge.any() or uncoloured or guided) \
+        else {}
     if guided:
         ahead.update({b: (rest, across) for b in CANDIDATES[GUIDED]})
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
@@ -478,7 +485,8 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         curve_fill = None if planar is None else solves.submit(quadric_fill, work, planar)
         # a light inside a guided hole (a lamp merged with a wider hole): its colour is the light's, it takes the
         # hole's thin plate (found while the solves run: no solve started above needs it)
-        lights = (lights_in_holes(shine.result(), rest & coloured[labels], rgb, valid_depth(work)) if guided
+        guided_px = rest & coloured[labels] if guided else None
+        lights = (lights_in_holes(shine.result(), guided_px, rgb, valid_depth(work)) if guided
                   else np.zeros(work.shape, dtype=bool))
         choice = choose_per_hole(out, rgb, labels, traits, copies, pool=solves, step=step)
         ways, ways_used, band_jobs = ((np.zeros(work.shape, dtype=int), [], {}) if band_fills is None
@@ -487,7 +495,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         chosen = np.unique(choice[1:][np.bincount(labels.ravel(), minlength=n + 1)[1:] > 0])
         needed = {b for k in chosen for b in CANDIDATES[NAMES[k]]}
         jobs = {name: (rest, across) for name in sorted(needed | ({"biharmonic"} if lights.any() else set()))}
-        if guided and edge.any():  # the band's thin plate, as when the guided holes' fill held the biharmonic one
+        if guided:  # the guided holes' evidence (:func:`agreeing_holes`), and the band's thin plate beside them
             jobs["biharmonic"] = (rest, across)
         joint = "biharmonic" in jobs and edge.any()
         if joint:  # the band in the same thin plate as the holes, not extended afterwards from their fills
@@ -508,6 +516,16 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
+    if guided:  # where the colour-guided thin plate agrees with the plain one, not with NYU's fill: the thin plate
+        agree = agreeing_holes(labels, guided_px, *(fills[b] for b in (*CANDIDATES[GUIDED], "biharmonic")))
+        sel_agree = guided_px & agree[labels] & ~lights
+        if sel_agree.any():
+            out[sel_agree] = fills["biharmonic"][sel_agree]
+            counts["biharmonic"] = counts.get("biharmonic", 0) + int(sel_agree.sum())
+            for b in CANDIDATES[GUIDED]:
+                counts[b] -= int(sel_agree.sum())
+                if not counts[b]:  # every guided hole took the thin plate
+                    del counts[b]
     if lights.any():
         out[lights] = fills["biharmonic"][lights]
         counts["biharmonic"] = counts.get("biharmonic", 0) + int(lights.sum())
@@ -537,6 +555,40 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
 #: Without RGB, a stepped hole whose thin plate lies on its rim's depth bound over more than this share of its pixels
 #: takes the mean of it and the harmonic fill (module docstring, 2.).
 PINNED_SHARE = 0.25
+
+
+#: A colour-guided hole whose guided thin plate lies nearer the plain thin plate than this share of its distance from
+#: NYU's colorization takes the plain thin plate (:func:`agreeing_holes`).
+AGREE = 0.1
+
+
+def agreeing_holes(labels: np.ndarray, where: np.ndarray, nyu: np.ndarray, plate: np.ndarray,
+                   membrane: np.ndarray) -> np.ndarray:
+    """Per hole label, whether the colour-guided hole's guided thin plate ``plate`` agrees with the plain thin plate
+    ``membrane``: their mean absolute difference over the hole's pixels in ``where`` less than :data:`AGREE` times
+    that of ``plate`` and NYU's colorization ``nyu``. Where colour does not steer the thin plate off the plain one,
+    the colour shows nothing of the surface's shape there (flat, or its edges not the hole's), and NYU's fill, which
+    levels slopes off, pulls the mean of the two guided fills off the slope both thin plates continue (module
+    docstring, 2.; session 16, helper ``blob16``).
+
+    Parameters
+    ----------
+    labels : int (H, W) the holes (0 = none).
+    where : bool (H, W) the colour-guided holes' pixels (:func:`guided_holes`).
+    nyu, plate, membrane : float (H, W) the fills there (NaN: no evidence).
+
+    Returns
+    -------
+    bool (labels.max() + 1,): False for every hole without a pixel in ``where``.
+    """
+    n_labels = int(labels.max()) + 1
+    at = np.flatnonzero(where)
+    n, p, m = (f.ravel()[at].astype(np.float64) for f in (nyu, plate, membrane))
+    apart, near = np.nan_to_num(np.abs(n - p)), np.nan_to_num(np.abs(p - m))  # an unfilled pixel: no evidence
+    lab = labels.ravel()[at]
+    agree = np.bincount(lab, near, n_labels) < AGREE * np.bincount(lab, apart, n_labels)
+    agree[0] = False
+    return agree
 
 
 def _pinned(fill: np.ndarray, depth: np.ndarray, across: np.ndarray, broad: np.ndarray) -> np.ndarray:
