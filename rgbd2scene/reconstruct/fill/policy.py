@@ -347,8 +347,8 @@ def fill_depth(
     used = method
     counts: dict[str, int] = {}
     shadow = np.zeros(depth.shape, dtype=bool)
-    shadow_record = {"cast": False, "reason": f"the {method} fill tells no shadows apart" if method != "auto"
-                     else "no hole inside the border band"}
+    shadow_record = {"cast": False, "reason": f"the fill method {method!r} does not model shadows" if method != "auto"
+                     else "no hole to fill inside the border band"}
     if method == "none" or not valid.any() or not interior.any():
         out = work.copy()
     elif method == "inpaint":
@@ -516,21 +516,16 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         out[sel] = np.mean([fills[b][sel] for b in CANDIDATES[NAMES[k]]], axis=0)
         for b in CANDIDATES[NAMES[k]]:
             counts[b] = counts.get(b, 0) + int(sel.sum())
-    if guided:  # where the colour-guided thin plate agrees with the plain one, not with NYU's fill: the thin plate
+    if guided:  # the thin plate in the lights and where the colour-guided thin plate agrees with the plain one
         agree = agreeing_holes(labels, guided_px, *(fills[b] for b in (*CANDIDATES[GUIDED], "biharmonic")))
-        sel_agree = guided_px & agree[labels] & ~lights
-        if sel_agree.any():
-            out[sel_agree] = fills["biharmonic"][sel_agree]
-            counts["biharmonic"] = counts.get("biharmonic", 0) + int(sel_agree.sum())
-            for b in CANDIDATES[GUIDED]:
-                counts[b] -= int(sel_agree.sum())
+        plate = lights | (guided_px & agree[labels])
+        if plate.any():
+            out[plate] = fills["biharmonic"][plate]
+            counts["biharmonic"] = counts.get("biharmonic", 0) + int(plate.sum())
+            for b in CANDIDATES[GUIDED]:  # those pixels had the mean of the guided fills
+                counts[b] -= int(plate.sum())
                 if not counts[b]:  # every guided hole took the thin plate
                     del counts[b]
-    if lights.any():
-        out[lights] = fills["biharmonic"][lights]
-        counts["biharmonic"] = counts.get("biharmonic", 0) + int(lights.sum())
-        for b in CANDIDATES[GUIDED]:
-            counts[b] -= int(lights.sum())
     if pinned is not None and pinned.any():
         membrane = fills["harmonic"] if "harmonic" in fills else _base_fill("harmonic", out, None, pinned, across)
         out[pinned] = (out[pinned] + membrane[pinned]) / 2
