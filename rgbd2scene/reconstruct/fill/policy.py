@@ -149,8 +149,12 @@ before then are on the narrower splits.
    levelling off where the rim is noisy, the colour where the band holds another surface) is what the surface
    just inside it shows. The thin plate is solved jointly with the holes that take a thin plate (a wide band
    beside a wide hole is one surface to continue); the band's harmonic and NYU fills only on the stretches
-   that take them and beside them. Whatever the fill, each band pixel is then clipped to the depth range of
-   the valid pixels within the band's width of it, widened by :data:`BAND_MARGIN`
+   that take them and beside them. The band's shadow fills (a shadow run's far depth) are no data for these
+   solves (session 17): a band pixel between such a fill and the near surface took a ramp across both (SUN's
+   lamp in the top band beside a shadow: tuning SUN specular 6 band 17.3 mm against the plain thin plate's 5.9,
+   10.4 without; tuning 10 rows better, none worse; held-out 5 better, none worse). Whatever the fill, each band
+   pixel is then clipped to the depth range of the valid pixels within the band's width of it, widened by
+   :data:`BAND_MARGIN`
    (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_surround`): where the surface recedes towards the edge
    a thin plate carries inverse depth on towards zero. Under white noise the band's thin plate and membrane
    fill from the smoothed rim (5.).
@@ -439,6 +443,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     rest = todo & ~band & ~shadow
     if not rest.any():
         return out, counts, shadow, shadow_record
+    # the band's shadow fills are no data for the solves: a band pixel between a shadow's far fill and the near
+    # surface takes the near surface's extension, not a ramp across both (SUN's lamp beside a shadow in the top band)
+    given = out.copy()
+    given[shadow & band] = np.nan
     labels, n = components(rest)
     stepped = np.zeros(n + 1, dtype=bool)
     stepped[labels[runs.pixels(work.shape) & rest]] = True
@@ -472,10 +480,10 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     with single_blas_thread(), ThreadPoolExecutor(max_workers=_solver_threads()) as solves, \
             ThreadPoolExecutor(max_workers=1) as side:
         # the smoothed rim (step 5) is made while the solves that do not take it run
-        early = _submit_fills(solves, out, rgb, {b: job for b, job in ahead.items() if b not in SMOOTH})
-        smoothed = _smoothed_rim(work, out, rest | edge)
-        early.update(_submit_fills(solves, out, rgb, {b: job for b, job in ahead.items() if b in SMOOTH}, smoothed))
-        band_fills = (side.submit(_band_fills, solves, work, out, rgb, edge, band, border_width, smoothed)
+        early = _submit_fills(solves, given, rgb, {b: job for b, job in ahead.items() if b not in SMOOTH})
+        smoothed = _smoothed_rim(work, given, rest | edge)
+        early.update(_submit_fills(solves, given, rgb, {b: job for b, job in ahead.items() if b in SMOOTH}, smoothed))
+        band_fills = (side.submit(_band_fills, solves, work, given, rgb, edge, band, border_width, smoothed)
                       if edge.any() else None)
         # planes and quadrics: fitted round every wide hole but the highlights (the noise they are tested against is
         # measured on the crop round them: round the guided ones alone it may be a depth edge's), taken in the
@@ -505,7 +513,7 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
                 del jobs[name]
             else:  # not chosen after all: unused (the pool waits for it at its end if it has started)
                 early.pop(name).cancel()
-        early.update(_submit_fills(solves, out, rgb, _costly_first(jobs), smoothed))
+        early.update(_submit_fills(solves, given, rgb, _costly_first(jobs), smoothed))
         fills = {name: future.result() for name, future in {**early, **band_jobs}.items()}
     # without RGB, the stepped holes whose thin plate its clip pins to the rim's range: levelled by the membrane
     pinned = _pinned(fills["biharmonic"], out, across, broad[labels]) if rgb is None and across.any() else None
