@@ -110,6 +110,13 @@ before then are on the narrower splits.
    colour-guided fills had up to 1.6 times the biharmonic fill's error on the large holes). A hole open to the region
    left unfilled (a notch in an organ's outline) keeps the mean (the thin plate extrapolates over the free edge),
    and so does a hole whose ring a depth edge crosses (the colour may show where the surface breaks inside it).
+   Such a guided hole on noise-free depth no wider than :data:`EXACT_REACH` takes the colour-guided thin plate
+   alone, not the mean with the NYU colorization (:func:`exact_holes`, session 17, helper ``hole17``): NYU's weighted
+   averages level the exact rim's slopes and curvature off, which the guided thin plate continues while its colour
+   edges still cut it where the surface breaks (tissue-ct's rows, the only noise-free capture: tuning 0.979 -> 0.973
+   of the best reference, rows above 1.10 3 -> 1; held-out 0.993 -> 0.946, 3 -> 2; on the other captures the guided
+   thin plate alone did worse than the mean). A wider hole keeps the mean: over the tuning split's large holes
+   (63-81 px wide) the two fills' errors swap places (one row 1.08 -> 0.54, another 0.94 -> 1.23).
    Planes and quadrics are still fitted round every wide hole (the noise they are tested against is measured on
    the crop round them) but taken only in the colour-guided ones. Tuning split 0.6639 -> 0.6600 (rows above 1.10
    58 -> 53 of 260), held-out 0.6560 -> 0.6490 (55 -> 49 of 244), every row but tissue-ct's bit-identical
@@ -463,7 +470,9 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         lit[0] = False
     edge = band & ~shadow
     across = stepped[labels] & rest
-    plain = plain_holes(work, todo, labels, n, step) if rgb is not None else None
+    exact = rgb is not None and noise_free(work, valid_depth(work))
+    plain = plain_holes(work, todo, labels, n, step, exact=exact) if rgb is not None else None
+    alone = exact_holes(labels, inscribed, exact)
     traits = HoleTraits(stepped, wide, lit, plain)
     # the thin plate of holes and band and the guided holes' fills (NYU colorization, colour-guided thin plate) are
     # the longest solves, and their inputs are known before any evidence: they start first, beside the evidence's
@@ -534,6 +543,12 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
                 counts[b] -= int(plate.sum())
                 if not counts[b]:  # every guided hole took the thin plate
                     del counts[b]
+        thin = guided_px & alone[labels] & ~plate  # noise-free depth: the colour-guided thin plate alone
+        if thin.any():
+            out[thin] = fills["guided_thin_plate"][thin]
+            counts["nyu_colorization"] -= int(thin.sum())
+            if not counts["nyu_colorization"]:
+                del counts["nyu_colorization"]
     if pinned is not None and pinned.any():
         membrane = fills["harmonic"] if "harmonic" in fills else _base_fill("harmonic", out, None, pinned, across)
         out[pinned] = (out[pinned] + membrane[pinned]) / 2
@@ -592,6 +607,29 @@ def agreeing_holes(labels: np.ndarray, where: np.ndarray, nyu: np.ndarray, plate
     agree = np.bincount(lab, near, n_labels) < AGREE * np.bincount(lab, apart, n_labels)
     agree[0] = False
     return agree
+
+
+def exact_holes(labels: np.ndarray, inscribed: np.ndarray, exact: bool) -> np.ndarray:
+    """Per hole label, whether a colour-guided hole there takes the colour-guided thin plate alone instead of the
+    mean with the NYU colorization (module docstring, 2.): the capture's depth is noise-free (``exact``:
+    :func:`~rgbd2scene.reconstruct.fill.planes.noise_free`), where NYU's weighted averages level the exact rim's
+    slopes and curvature off, and the hole is no wider than :data:`EXACT_REACH` (no pixel farther from its rim).
+
+    Parameters
+    ----------
+    labels : int (H, W) the holes (0 = none).
+    inscribed : float (H, W) each hole pixel's distance from the nearest pixel outside the holes (px).
+    exact : whether the capture's depth is noise-free.
+
+    Returns
+    -------
+    bool (labels.max() + 1,): False for label 0, and for every hole where ``exact`` is False.
+    """
+    alone = np.full(int(labels.max()) + 1, exact, dtype=bool)
+    if exact:  # a sensor's capture (every benchmark frame but CT): nothing to look at
+        alone[labels[inscribed > EXACT_REACH]] = False
+    alone[0] = False
+    return alone
 
 
 def _pinned(fill: np.ndarray, depth: np.ndarray, across: np.ndarray, broad: np.ndarray) -> np.ndarray:
@@ -658,6 +696,10 @@ NAMES = list(CANDIDATES)
 #: The fill of a colour-guided hole (module docstring, 2.), then planes where the capture shows them: no choice by
 #: copies (choosing among it, the biharmonic fill and the NYU colorization did worse, ``fill.md`` session 10).
 GUIDED = "nyu_colorization+guided_thin_plate"
+#: On noise-free depth a colour-guided hole no wider than this many px (its farthest pixel from the rim) takes the
+#: guided thin plate alone (:func:`exact_holes`): the tuning split's guided holes there are up to 25 px wide, its
+#: large holes 63-81 px, over which the thin plate's and NYU's errors swap places.
+EXACT_REACH = 40.0
 #: What narrow holes and highlights choose between on copies (module docstring, 3.).
 SMOOTH = ("harmonic", "biharmonic")
 #: Within this many px of a guided hole's rim its plane or quadric is blended in linearly from the hole's other fill
@@ -783,17 +825,18 @@ def _copy_errors(depth, labels, traits: HoleTraits, clearance: int, coverage: fl
 
 
 def plain_holes(depth: np.ndarray, todo: np.ndarray, labels: np.ndarray, n: int, step: float,
-                reach: int = EDGE_REACH) -> np.ndarray:
+                reach: int = EDGE_REACH, exact: bool | None = None) -> np.ndarray:
     """Per hole label (index 0: none), whether the hole is filled by the thin plate alone, its colour set aside
     (module docstring, 2.): the capture is noise-free (:func:`~rgbd2scene.reconstruct.fill.planes.noise_free`),
     the hole is enclosed by valid depth (it touches no invalid pixel outside ``todo``, the pixels to fill: a hole
     open to the region outside the surface has a free edge there, over which a thin plate extrapolates), and no
     depth edge crosses its ring (two 4-adjacent valid pixels, one within ``reach`` px of the hole and nearer it
     than any other hole, whose inverse depths differ by more than ``step``: where the surface breaks, the colour
-    may show where it breaks inside the hole)."""
+    may show where it breaks inside the hole). ``exact``: whether the capture is noise-free, where the caller knows
+    it (None: found here)."""
     valid = valid_depth(depth)
     plain = np.zeros(n + 1, dtype=bool)
-    if not noise_free(depth, valid):
+    if not (noise_free(depth, valid) if exact is None else exact):
         return plain
     plain[1:] = True
     beyond = ndi.binary_dilation(~valid & ~todo, structure=np.ones((3, 3), dtype=bool))
