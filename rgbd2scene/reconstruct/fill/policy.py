@@ -626,7 +626,7 @@ def exact_holes(labels: np.ndarray, inscribed: np.ndarray, exact: bool) -> np.nd
     bool (labels.max() + 1,): False for label 0, and for every hole where ``exact`` is False.
     """
     alone = np.full(int(labels.max()) + 1, exact, dtype=bool)
-    if exact:  # a sensor's capture (every benchmark frame but CT): nothing to look at
+    if exact:  # else a sensor's capture (every benchmark frame but CT's): no hole takes it, no width to look at
         alone[labels[inscribed > EXACT_REACH]] = False
     alone[0] = False
     return alone
