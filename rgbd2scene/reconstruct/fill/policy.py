@@ -536,19 +536,9 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
     if guided:  # the thin plate in the lights and where the colour-guided thin plate agrees with the plain one
         agree = agreeing_holes(labels, guided_px, *(fills[b] for b in (*CANDIDATES[GUIDED], "biharmonic")))
         plate = lights | (guided_px & agree[labels])
-        if plate.any():
-            out[plate] = fills["biharmonic"][plate]
-            counts["biharmonic"] = counts.get("biharmonic", 0) + int(plate.sum())
-            for b in CANDIDATES[GUIDED]:  # those pixels had the mean of the guided fills
-                counts[b] -= int(plate.sum())
-                if not counts[b]:  # every guided hole took the thin plate
-                    del counts[b]
-        thin = guided_px & alone[labels] & ~plate  # noise-free depth: the colour-guided thin plate alone
-        if thin.any():
-            out[thin] = fills["guided_thin_plate"][thin]
-            counts["nyu_colorization"] -= int(thin.sum())
-            if not counts["nyu_colorization"]:
-                del counts["nyu_colorization"]
+        _instead_of_mean(out, counts, plate, fills, "biharmonic")
+        # noise-free depth: the colour-guided thin plate alone
+        _instead_of_mean(out, counts, guided_px & alone[labels] & ~plate, fills, "guided_thin_plate")
     if pinned is not None and pinned.any():
         membrane = fills["harmonic"] if "harmonic" in fills else _base_fill("harmonic", out, None, pinned, across)
         out[pinned] = (out[pinned] + membrane[pinned]) / 2
@@ -575,15 +565,30 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
 PINNED_SHARE = 0.25
 
 
+def _instead_of_mean(out: np.ndarray, counts: dict[str, int], where: np.ndarray, fills: dict[str, np.ndarray],
+                     name: str) -> None:
+    """``out`` takes the fill ``name`` on ``where``, pixels of colour-guided holes that had the mean of the guided fills
+    (:data:`GUIDED`); ``counts`` (pixels per fill) moves them from the mean's fills to ``name``."""
+    taken = int(where.sum())
+    if not taken:
+        return
+    out[where] = fills[name][where]
+    counts[name] = counts.get(name, 0) + taken
+    for b in CANDIDATES[GUIDED]:
+        counts[b] -= taken
+        if not counts[b]:  # every guided hole took another fill
+            del counts[b]
+
+
 #: A colour-guided hole whose guided thin plate lies nearer the plain thin plate than this share of its distance from
 #: NYU's colorization takes the plain thin plate (:func:`agreeing_holes`).
 AGREE = 0.1
 
 
 def agreeing_holes(labels: np.ndarray, where: np.ndarray, nyu: np.ndarray, plate: np.ndarray,
-                   membrane: np.ndarray) -> np.ndarray:
+                   thin_plate: np.ndarray) -> np.ndarray:
     """Per hole label, whether the colour-guided hole's guided thin plate ``plate`` agrees with the plain thin plate
-    ``membrane``: their mean absolute difference over the hole's pixels in ``where`` less than :data:`AGREE` times
+    ``thin_plate``: their mean absolute difference over the hole's pixels in ``where`` less than :data:`AGREE` times
     that of ``plate`` and NYU's colorization ``nyu``. Where colour does not steer the thin plate off the plain one,
     the colour shows nothing of the surface's shape there (flat, or its edges not the hole's), and NYU's fill, which
     levels slopes off, pulls the mean of the two guided fills off the slope both thin plates continue (module
@@ -593,7 +598,7 @@ def agreeing_holes(labels: np.ndarray, where: np.ndarray, nyu: np.ndarray, plate
     ----------
     labels : int (H, W) the holes (0 = none).
     where : bool (H, W) the colour-guided holes' pixels (:func:`guided_holes`).
-    nyu, plate, membrane : float (H, W) the fills there (NaN: no evidence).
+    nyu, plate, thin_plate : float (H, W) the fills there (NaN: no evidence).
 
     Returns
     -------
@@ -601,7 +606,7 @@ def agreeing_holes(labels: np.ndarray, where: np.ndarray, nyu: np.ndarray, plate
     """
     n_labels = int(labels.max()) + 1
     at = np.flatnonzero(where)
-    n, p, m = (f.ravel()[at].astype(np.float64) for f in (nyu, plate, membrane))
+    n, p, m = (f.ravel()[at].astype(np.float64) for f in (nyu, plate, thin_plate))
     apart, near = np.nan_to_num(np.abs(n - p)), np.nan_to_num(np.abs(p - m))  # an unfilled pixel: no evidence
     lab = labels.ravel()[at]
     agree = np.bincount(lab, near, n_labels) < AGREE * np.bincount(lab, apart, n_labels)
