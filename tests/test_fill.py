@@ -1131,8 +1131,25 @@ def test_dropout_on_a_surface_in_front_of_a_hole_beyond_range_is_filled():
     dropout = (np.hypot(v - 255, u - 350) <= 12) & ~far
     res = fill_depth(np.where(far | dropout, np.nan, depth).astype(np.float32), None, "auto")
     assert np.isfinite(res.depth[dropout]).all()
-    assert np.abs(res.depth[dropout] - depth[dropout]).max() < 0.01
+    # 3.6 mm before session 18's opening of what is left open, which fills the tunnel end's corners beside the
+    # partition (at the cut of _in_front) in the same hole as the dropout: 16 mm
+    assert np.abs(res.depth[dropout] - depth[dropout]).max() < 0.02
     assert np.isnan(res.depth[(dist <= 30) & (u < 320)]).all()
+
+
+def test_dropout_merged_with_the_real_corridor_end_leaves_no_lobe_open(shared_samples):
+    """The real SUN frame with a disc of 18 px hidden on the partition's edge beside the corridor's unseen end:
+    the disc merges with the hole beyond range and widens it, so disks of ``min_radius`` swept 89 of its 707
+    hidden pixels (a lobe beyond _in_front's 12 px reach), left empty. What is left open must itself be swept by
+    disks of ``min_radius`` - margin: every hidden pixel is filled, and the corridor's end stays empty."""
+    from rgbd2scene.capture.readers import read_depth
+
+    depth, _, _ = read_depth(shared_samples / "nyu_sun_raw_frames_open3d" / "SUN_depth.png")
+    v, u = np.mgrid[0:480, 0:640]
+    dropout = (np.hypot(v - 150, u - 336) <= 18) & np.isfinite(depth)
+    res = fill_depth(np.where(dropout, np.nan, depth).astype(np.float32), None, "auto")
+    assert np.isfinite(res.depth[dropout]).all()
+    assert res.stats["beyond_range_fraction"] > 0.04
 
 
 def test_without_rgb_a_thin_plate_pinned_to_its_rims_range_is_levelled(shared_samples):
