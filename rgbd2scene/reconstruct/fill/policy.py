@@ -151,7 +151,15 @@ before then are on the narrower splits.
    The membrane (harmonic fill) only where its strip error is below the other candidates' by
    :data:`BAND_MEMBRANE_MARGIN` (session 15, helper ``band15``): a strip's error favoured it narrowly where the
    band's own pixels take the thin plate (the NYU frame, no RGB, under transplanted bands 32 px wide: tuning NYU
-   transplant 5 band 373 mm against the biharmonic fill's 307, with the margin 309).
+   transplant 5 band 373 mm against the biharmonic fill's 307, with the margin 309). A stretch most of whose strip
+   runs hold one surface but a depth step within the run's length beyond the strip (:func:`stepped_strips`) takes
+   the thin plate (:data:`BAND_STEPPED_SHARE`; session 18, helper ``band18``): its trial filled the strip from a
+   sliver of surface beside the step, the band is filled from the whole strip (the Redwood frame 3 under a 32 px
+   band, a pillar 32-34 px further in: the trial's thin plate ran off the 2 px of wall beside it and the strips
+   chose NYU's colorization; tuning Redwood3 transplant 5 band 32.9 mm of the row against the thin plate's 23.8,
+   the same with the rule; tuning 0.6206 -> 0.6199, rows above 1.10 21 -> 20, no row worse). A step in the strip
+   itself is left to the trial: it may run on into the band, where the colour follows it (marking those too
+   cost tuning TUM blobs 6 0.64 -> 0.92).
    A band is an extrapolation: which continuation fits (a thin plate carrying the rim's slope on, a membrane
    levelling off where the rim is noisy, the colour where the band holds another surface) is what the surface
    just inside it shows. The thin plate is solved jointly with the holes that take a thin plate (a wide band
@@ -998,6 +1006,57 @@ def band_strips(band: np.ndarray, valid: np.ndarray, stretch: int = BAND_STRETCH
     return seg_band, seg_strip
 
 
+#: A stretch takes the thin plate where more than this share of its strip's pixels lie in runs with a depth step just
+#: beyond the strip and none in it (:func:`stepped_strips`): its trial filled the strip from a sliver beside the step.
+BAND_STEPPED_SHARE = 0.5
+
+
+def stepped_strips(band: np.ndarray, depth: np.ndarray, step: float = STEP) -> np.ndarray:
+    """The valid pixels of the border band's strips (:func:`band_strips`) whose run has a depth step just beyond
+    the strip and none in it.
+
+    :func:`choose_band` hides each strip run (the band's run along a row or column, moved inward by its own length)
+    and fills it from the valid depth beyond, as the band is filled from its strip. Where the strip holds one
+    surface but a step lies within the run's length beyond it, the trial fills the strip from a sliver of that
+    surface beside the step, or from the surface across it, while the band is filled from the whole strip: the
+    trial's error then says nothing of the band's fill (the Redwood frame 3 under a 32 px band, a pillar 32-34 px
+    further in: the trial's thin plate ran off the 2 px of wall left beside it, 0.06 1/m in inverse depth against the
+    colour's 0.009, where in the band it beat NYU's colorization by 2.3 times). A step in the strip itself may run on
+    into the band, where the colour may follow it: such a run is left to the trial.
+
+    Parameters
+    ----------
+    band : bool (H, W) the border band.
+    depth : float (H, W) metres, NaN = invalid.
+    step : relative difference in inverse depth between neighbouring valid pixels that makes a step.
+
+    Returns
+    -------
+    bool (H, W): True on the strip pixels (as :func:`band_strips` assigns them to the edges) of such runs.
+    """
+    valid = valid_depth(depth)
+    inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), np.nan)
+    beside = np.zeros(band.shape, dtype=bool)
+    claimed = np.zeros(band.shape, dtype=bool)
+    for flip in (False, True):
+        for transpose in (False, True):
+            b, v, iv, out, cl = (_edge_view(a, transpose, flip) for a in (band, valid, inv, beside, claimed))
+            n, m = b.shape
+            run = np.where((~b).any(axis=1), (~b).argmax(axis=1), m)[:, None]
+            # no run looks further in (a row all band has no strip): the views cut there, the band being narrow
+            reach = min(3 * int(run[run < m].max(initial=0)), m)
+            b, v, iv, out, cl = (a[:, :reach] for a in (b, v, iv, out, cl))
+            col = np.arange(reach)[None, :]
+            strip = (col >= run) & (col < 2 * run) & v & ~b & ~cl
+            near = (col >= run) & (col < 3 * run) & v & ~b  # the strip and as far again beyond it
+            jump = near[:, 1:] & near[:, :-1] & (np.abs(np.diff(iv, axis=1)) > step * np.fmax(iv[:, 1:], iv[:, :-1]))
+            inside = col[:, 1:] < 2 * run  # the pair (c - 1, c) with c in the strip
+            hit = (jump & ~inside).any(axis=1) & ~(jump & inside).any(axis=1)
+            out[strip] = np.broadcast_to(hit[:, None], strip.shape)[strip]
+            cl[strip] = True
+    return beside
+
+
 def choose_band(work, rgb, edge, band, border_width, pool: Executor | None = None) -> np.ndarray:
     """Per pixel of ``edge`` (the band to fill), the index in :data:`BAND_NAMES` of its fill, chosen per
     stretch of its edge by evidence from the capture (module docstring, 4.).
@@ -1037,5 +1096,8 @@ def choose_band(work, rgb, edge, band, border_width, pool: Executor | None = Non
     # the membrane only where it beats the others clearly (:data:`BAND_MEMBRANE_MARGIN`)
     err[:, names.index("harmonic")] *= BAND_MEMBRANE_MARGIN
     choice = err.argmin(axis=1)  # argmin keeps the first (biharmonic) on a tie and where no strip was scored
+    # a strip whose trial filled it from a sliver beside a step is no evidence for its band: the thin plate
+    crossed = np.bincount(owner, weights=stepped_strips(band[::sc, ::sc], small)[test], minlength=n)
+    choice[crossed > BAND_STEPPED_SHARE * np.bincount(owner, minlength=n)] = 0
     choice[0] = 0
     return choice[seg_band]
