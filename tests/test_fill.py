@@ -1213,6 +1213,28 @@ def test_without_rgb_a_thin_plate_pinned_to_its_rims_range_is_levelled(shared_sa
     assert error < 1.1 * np.abs(membrane[scored] - depth[scored]).mean()
 
 
+def test_a_stepped_hole_opening_onto_the_band_is_bounded_by_the_bands_fill_too(shared_samples):
+    """The real NYU frame (no colour) under the tissue sample's hole mask, upside down: at the left edge the mask
+    hides the tip of a near object (1.4 m, in front of a wall at 3.2 m) and merges it with the sensor's band, so
+    the object shows only below, beyond the band. The holes and the band are one thin plate; the stepped hole beside
+    the tip was clipped to its valid rim's range (the wall's): 1.45 m off on the tip's pixels. With the band's fill
+    as its rim where it opens onto the band, 0.73 m (the benchmark's NYU transplant row 0)."""
+    from pathlib import Path
+
+    from rgbd2scene.capture.readers import read_depth
+
+    depth = read_depth(shared_samples / "nyu_sun_raw_frames_open3d" / "NYU_depth.pgm")[0]
+    sample = Path(__file__).resolve().parents[1] / "data_samples" / "tissue" / "depth.png"
+    mask = ~np.isfinite(read_depth(sample, 1000)[0])[::-1]
+    holed = np.where(mask, np.nan, depth).astype(np.float32)
+    res = fill_depth(holed, None, "auto")
+    v, u = np.mgrid[0:480, 0:640]
+    scored = mask & np.isfinite(depth)
+    tip = scored & (v >= 184) & (v < 200) & (u < 24)
+    assert np.abs(res.depth[tip] - depth[tip]).mean() < 1.0
+    assert np.abs(res.depth[scored] - depth[scored]).mean() < 0.026
+
+
 def test_blobs_across_a_near_outline_against_the_far_end_are_filled(shared_samples):
     """Random blobs on the real TUM frame (seed 120 of the benchmark's blob generator, none of its seeds)
     merge into a hole straddling the partition's outline against the far room: its rim is mostly far,

@@ -81,11 +81,12 @@ before then are on the narrower splits.
    quadric fitted to the hidden truth itself is worse than the best plain fill on 15 of 16 rows, so the ring test
    refuses them (residual 4.5-11 times the noise on their rings) and their misses stay (``fill.md``, session 12).
    Session 12: tuning split 0.677 -> 0.670, rows above 1.10 5 -> 5; held-out 0.705 -> 0.700, 6 -> 6. Without RGB:
-   the biharmonic fill, clipped to the rim's range where the hole bridges a step; where that clip pins more than
-   :data:`PINNED_SHARE` of a hole wider than ``small_radius`` to its rim's nearest or farthest depth, the thin plate
-   has carried the rim's slopes out of its range (the slopes do not continue across the hole), and the hole takes the
-   mean of it and the harmonic fill, which levels off within the range (session 13: the NYU frame under a tuning
-   ellipse over the chairs, 72 % pinned: 2.16 -> 1.17 times the best reference). Session 10 (planes and the thin
+   the biharmonic fill, clipped to the rim's range where the hole bridges a step (where the hole opens onto the border
+   band filled in the same thin plate, the band's fill is part of that rim: :func:`_solved_rim`); where that clip pins
+   more than :data:`PINNED_SHARE` of a hole wider than ``small_radius`` to its rim's nearest or farthest depth, the
+   thin plate has carried the rim's slopes out of its range (the slopes do not continue across the hole), and the hole
+   takes the mean of it and the harmonic fill, which levels off within the range (session 13: the NYU frame under a
+   tuning ellipse over the chairs, 72 % pinned: 2.16 -> 1.17 times the best reference). Session 10 (planes and the thin
    plate together, against session 9's per-hole choice among the mean of the NYU colorization and the biharmonic
    fill, each alone, by copies of the hole laid on valid depth, whose evidence proved no better than always taking
    the mean): tuning split 0.753 -> 0.680, rows above 1.10 14 -> 5 of 77; held-out split 0.783 -> 0.706, 18 -> 9;
@@ -533,7 +534,9 @@ def _auto(work, rgb, shine, todo, band, step, fx, baselines, small_radius, copie
         early.update(_submit_fills(solves, given, rgb, _costly_first(jobs), smoothed))
         fills = {name: future.result() for name, future in {**early, **band_jobs}.items()}
     # without RGB, the stepped holes whose thin plate its clip pins to the rim's range: levelled by the membrane
-    pinned = _pinned(fills["biharmonic"], out, across, broad[labels]) if rgb is None and across.any() else None
+    solved = rest | edge if joint else rest
+    pinned = (_pinned(fills["biharmonic"], _solved_rim(out, fills["biharmonic"], solved, across), across, broad[labels])
+              if rgb is None and across.any() else None)
     if joint:
         out[edge] = fills["biharmonic"][edge]
     for k in chosen:
@@ -643,6 +646,16 @@ def exact_holes(labels: np.ndarray, inscribed: np.ndarray, exact: bool) -> np.nd
         alone[labels[inscribed > EXACT_REACH]] = False
     alone[0] = False
     return alone
+
+
+def _solved_rim(depth: np.ndarray, fill: np.ndarray, mask: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """``depth`` with the pixels of ``mask`` outside ``across`` taken from ``fill``: what a stepped hole's thin plate
+    is bounded by (:func:`~rgbd2scene.reconstruct.fill.solvers.clip_to_rim`). Where a hole opens onto the border band
+    filled in the same solve, the band's fill is its rim there as much as the valid depth is: a surface that shows
+    only beyond the band (a near object at the image's edge) reaches the hole through it, and the valid rim's range
+    alone would cut it off (the NYU frame's left edge)."""
+    own = mask & ~across & np.isfinite(fill)
+    return np.where(own, fill, depth) if own.any() else depth
 
 
 def _pinned(fill: np.ndarray, depth: np.ndarray, across: np.ndarray, broad: np.ndarray) -> np.ndarray:
@@ -768,7 +781,7 @@ def _base_fill(name: str, depth, rgb, mask, across) -> np.ndarray:
         return fill_harmonic(depth, mask)
     if name == "biharmonic":
         f = fill_biharmonic(depth, mask)
-        return clip_to_rim(f, depth, across) if across.any() else f
+        return clip_to_rim(f, _solved_rim(depth, f, mask, across), across) if across.any() else f
     if name == "guided_thin_plate":  # every hole clipped: a thin plate cut loose by colour edges may overshoot
         return clip_to_rim(fill_guided_thin_plate(depth, rgb, mask), depth, mask)
     return fill_nyu_colorization(depth, rgb, mask, rtol=1e-7, reach=NYU_REACH)
