@@ -1219,12 +1219,11 @@ def test_a_stepped_hole_opening_onto_the_band_is_bounded_by_the_bands_fill_too(s
     the object shows only below, beyond the band. The holes and the band are one thin plate; the stepped hole beside
     the tip was clipped to its valid rim's range (the wall's): 1.45 m off on the tip's pixels. With the band's fill
     as its rim where it opens onto the band, 0.73 m (the benchmark's NYU transplant row 0)."""
-    from pathlib import Path
-
     from rgbd2scene.capture.readers import read_depth
+    from tests.conftest import BUNDLED_SAMPLE
 
     depth = read_depth(shared_samples / "nyu_sun_raw_frames_open3d" / "NYU_depth.pgm")[0]
-    sample = Path(__file__).resolve().parents[1] / "data_samples" / "tissue" / "depth.png"
+    sample = BUNDLED_SAMPLE / "depth.png"
     mask = ~np.isfinite(read_depth(sample, 1000)[0])[::-1]
     holed = np.where(mask, np.nan, depth).astype(np.float32)
     res = fill_depth(holed, None, "auto")
