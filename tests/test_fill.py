@@ -567,6 +567,27 @@ def test_colour_recovers_a_notch_bitten_deep_past_its_chord():
     assert np.isfinite(res.depth[bite]).all() and np.isnan(res.depth[drape]).all()
 
 
+def test_colour_blended_steps_of_a_bitten_diagonal_outline_are_the_surfaces():
+    """A hole across the dome's diagonal side, whose outline pixels the colour camera blends (40 % the organ's red,
+    60 % the drape's blue: 1.5 times nearer the drape's colour than the organ's): the colour test's margin leaves
+    them open (18 of the bite's 19 outline pixels). An open pixel at a concave corner of the surface's side (two of
+    its four neighbours) is a step of the pixel grid across the outline: it is the surface's unless its colour is
+    clearly the background's (``holes.CORNER_MARGIN``), so 5 are left; blended 30 % / 70 % (2.3 times nearer the
+    drape's) they stay open, and the drape stays empty."""
+    truth, organ, rgb, bite, depth = bitten_dome(33, 115, 12)
+    outline = organ & ndimage.binary_dilation(~organ, structure=ndimage.generate_binary_structure(2, 1))
+    left = {}
+    for share in (0.4, 0.3):
+        blended = rgb.copy()
+        blended[outline] = np.round(share * np.array([180, 80, 80]) + (1 - share) * np.array([40, 90, 140]))
+        res = fill_depth(depth, blended, "auto", sensor=get_sensor("none"))
+        left[share] = int(np.isnan(res.depth[bite]).sum())
+        assert np.isnan(res.depth[~organ]).all()
+        assert np.abs(res.depth[bite] - truth[bite])[np.isfinite(res.depth[bite])].max() < 0.05
+    assert (outline & bite).sum() == 19
+    assert left[0.4] <= 6 and left[0.3] >= 15
+
+
 def test_hole_beyond_the_range_stays_empty():
     """A tunnel: the surface recedes into the hole at its centre, the farthest depth in the image."""
     v, u = np.mgrid[0:H, 0:W].astype(np.float64)
