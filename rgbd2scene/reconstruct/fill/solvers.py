@@ -448,22 +448,79 @@ def fill_nyu_colorization(
     return _finish(depth, mask, x, nodes & mask)
 
 
-def _diagonal_pivot_lu(A: sparse.csc_matrix):
+def _diagonal_pivot_lu(A: sparse.csc_matrix, ordered: bool = False):
     """SuperLU factorisation with a minimum degree ordering of A + A^T and the diagonal as pivots, for a matrix
-    symmetric in structure that needs no row exchanges (symmetric positive definite, or diagonally dominant)."""
-    return splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    symmetric in structure that needs no row exchanges (symmetric positive definite, or diagonally dominant);
+    ``ordered``: A's rows and columns are in elimination order already (:func:`dissection_order`), no ordering."""
+    return splu(A, permc_spec="NATURAL" if ordered else "MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                options=dict(SymmetricMode=True))
 
 
-def _spd_solve(A: sparse.csc_matrix, b: np.ndarray) -> np.ndarray:
+def _spd_solve(A: sparse.csc_matrix, b: np.ndarray, ordered: bool = False) -> np.ndarray:
     """Solve A x = b for a symmetric positive definite A (:func:`_diagonal_pivot_lu`: an SPD matrix needs no
-    row exchanges).
+    row exchanges; ``ordered``: its unknowns in elimination order already).
 
     The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.40 s
     against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.49 s; the solution agrees to 1e-10
     (float32 fills within an ulp). Looked at and not used: a geometric nested dissection of the pixels
     (separators two pixels wide, the stencil's reach) with SuperLU's natural order, 0.25 s but 0.04-0.06 s to
-    order in Python; other ``relax`` and ``panel_size`` settings (within the noise)."""
-    return _diagonal_pivot_lu(A).solve(b)
+    order in Python; other ``relax`` and ``panel_size`` settings (within the noise). (Session 19 measured that
+    dissection, :func:`dissection_order`, at 6.9M entries and about as fast as the minimum degree's 5.2M
+    here; the guided thin plate's 5 x 5 stencil gains by it.)"""
+    return _diagonal_pivot_lu(A, ordered).solve(b)
+
+
+#: A box of at most this many unknowns ends :func:`dissection_order`'s bisection (smaller leaves: about as many
+#: entries in L + U, larger ones (64) 6 % more on the TUM frame's guided thin plate).
+DISSECTION_LEAF = 8
+
+
+def dissection_order(rows: np.ndarray, cols: np.ndarray, reach: int, leaf: int = DISSECTION_LEAF) -> np.ndarray:
+    """A nested dissection ordering of pixels whose system couples only pixels less than ``reach`` + 1 px apart
+    along each axis: the pixels' bounding box is cut across its longer side by a separator ``reach`` px wide,
+    each side cut again the same way until at most ``leaf`` pixels are left; each side is ordered before the
+    other, both before their separator (no coupling crosses a separator, so eliminating one side fills nothing
+    in the other).
+
+    Parameters
+    ----------
+    rows, cols : int (n,) the pixels' coordinates.
+    reach : the widest coupling of the system, in px along an axis (2 for a stencil spanning 5 x 5 pixels).
+    leaf : boxes of at most this many pixels are not cut (ordered by their index).
+
+    Returns
+    -------
+    int (n,): the pixels' indices in elimination order.
+    """
+    rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
+    n = rows.size
+    key = np.zeros(n, dtype=np.int64)  # base-3 digits per cut: 0 first side, 1 second side, 2 separator
+    box = np.zeros(n, dtype=np.int64)  # each uncut pixel's box, numbered 0 .. boxes - 1
+    live = np.arange(n)  # the pixels whose box is still cut
+    far = int(max(rows.max(), cols.max())) + 1 if n else 0
+    while live.size:  # each cut halves a box's longer side: about log2(rows * cols) rounds
+        key *= 3  # every key one digit longer: a settled pixel's later digits 0
+        b = box[live]
+        boxes = int(b.max()) + 1
+        r, c = rows[live], cols[live]
+        lo_r, hi_r, lo_c, hi_c = (np.full(boxes, fill, dtype=np.int64) for fill in (far, -1, far, -1))
+        np.minimum.at(lo_r, b, r)
+        np.maximum.at(hi_r, b, r)
+        np.minimum.at(lo_c, b, c)
+        np.maximum.at(hi_c, b, c)
+        across_rows = (hi_r - lo_r) >= (hi_c - lo_c)
+        x = np.where(across_rows[b], r, c)
+        cut = ((np.where(across_rows, lo_r + hi_r, lo_c + hi_c) + 1 - reach) // 2)[b]
+        digit = np.where(x < cut, 0, np.where(x >= cut + reach, 1, 2))
+        small = np.bincount(b, minlength=boxes)[b] <= leaf
+        digit[small] = 0
+        key[live] += digit
+        go = ~small & (digit < 2)
+        live, halves = live[go], 2 * b[go] + digit[go]
+        seen = np.zeros(2 * boxes, dtype=bool)
+        seen[halves] = True
+        box[live] = (np.cumsum(seen) - 1)[halves]
+    return np.argsort(key, kind="stable") if n else np.zeros(0, dtype=np.int64)
 
 
 def _dilated(mask: np.ndarray, structure: np.ndarray) -> np.ndarray:
@@ -472,13 +529,20 @@ def _dilated(mask: np.ndarray, structure: np.ndarray) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), structure.astype(np.uint8)).astype(bool)
 
 
-def _split_columns(v: np.ndarray, i: np.ndarray, j: np.ndarray, m: int, is_u: np.ndarray):
+def _split_columns(v: np.ndarray, i: np.ndarray, j: np.ndarray, m: int, is_u: np.ndarray,
+                   order: np.ndarray | None = None):
     """The (m, n) CSR matrix of the triplets (``v``, ``i``, ``j``) split into its columns where ``is_u`` and the rest:
     ``B[:, is_u]``, ``B[:, ~is_u]``, each built from its own triplets (the same canonical matrices, entries and order,
-    without CSR column indexing: 40 ms less per fill of the TUM frame)."""
+    without CSR column indexing: 40 ms less per fill of the TUM frame). ``order``: the first part's columns taken in
+    this order (``B[:, is_u][:, order]``)."""
     u = is_u[j]
-    return tuple(sparse.csr_matrix((v[sel], (i[sel], (np.cumsum(part) - 1)[j[sel]])), shape=(m, int(part.sum())))
-                 for sel, part in ((u, is_u), (~u, ~is_u)))  # cumsum - 1: each column's index within its part
+    index = [np.cumsum(part) - 1 for part in (is_u, ~is_u)]  # each column's index within its part
+    if order is not None:
+        rank = np.empty(order.size, dtype=np.int64)
+        rank[order] = np.arange(order.size)
+        index[0] = rank[index[0]]  # (-1 before the first unknown column: never read)
+    return tuple(sparse.csr_matrix((v[sel], (i[sel], at[j[sel]])), shape=(m, int(part.sum())))
+                 for sel, part, at in ((u, is_u, index[0]), (~u, ~is_u, index[1])))
 
 
 def _thin_plate(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -586,7 +650,12 @@ def _guided_plate_solver(grey: np.ndarray, contrast: float, floor: float):
             vv += [wgt, wgt, -2.0 * wgt]
             rows += e
         is_u = unknown[tr, tc]
-        Bu, Bk = _split_columns(np.concatenate(vv), np.concatenate(ii), np.concatenate(jj), rows, is_u)
+        ur, uc = tr[is_u], tc[is_u]
+        # the unknowns in nested dissection order (each term spans 3 x 3 pixels, so A couples pixels up to 2 px apart):
+        # on the TUM frame's 27k unknowns 4.0M entries in L + U against the minimum degree's 4.7M, and no ordering
+        # within SuperLU (its minimum degree on this stencil about 0.1 s): the solve about 0.4 s -> 0.25 s
+        order = dissection_order(ur, uc, reach=2)
+        Bu, Bk = _split_columns(np.concatenate(vv), np.concatenate(ii), np.concatenate(jj), rows, is_u, order)
         A = (Bu.T @ Bu).tocsc()
         b = -(Bu.T @ (Bk @ inv[tr[~is_u], tc[~is_u]]))
         # a nudge relative to the diagonal keeps degenerate holes solvable (and a plane exact where all weights
@@ -594,7 +663,7 @@ def _guided_plate_solver(grey: np.ndarray, contrast: float, floor: float):
         A = A + sparse.diags(1e-12 * np.maximum(A.diagonal(), 1e-300), format="csc")
         # SPD: a symmetric ordering without pivoting (TUM frame, 28k unknowns: 0.2 s; COLAMD 0.46 s)
         out = np.zeros(shape)
-        out[tr[is_u], tc[is_u]] = _spd_solve(A, b)
+        out[ur[order], uc[order]] = _spd_solve(A, b, ordered=True)
         return out
 
     return solve
