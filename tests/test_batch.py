@@ -390,6 +390,19 @@ def test_local_dask_cluster_gives_byte_identical_ground_truth(reference, capture
     assert leftovers(root) == []
 
 
+def group_stopped(pgid: int) -> bool:
+    """Whether every thread of process group ``pgid`` is stopped (or dead), from ``/proc/*/task/*/stat``."""
+    for stat in Path("/proc").glob("[0-9]*/task/*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:  # the thread ended while listed
+            continue
+        state, _ppid, group = text[text.rindex(")") + 2:].split()[:3]
+        if int(group) == pgid and state not in "TtZX":
+            return False
+    return True
+
+
 def test_kill_9_then_resume_equals_an_uninterrupted_build(reference, captures):
     """Kill the whole build (driver and Blender workers) mid-chunk, once a frame's npz has landed while
     another frame has only its images; the same command finishes it, keeps what was finished, sweeps the
@@ -409,8 +422,14 @@ def test_kill_9_then_resume_equals_an_uninterrupted_build(reference, captures):
 
     def stopped_mid_chunk() -> bool:
         """Freeze the build and look: the files it is killed on are the files checked (polling a running
-        build, the chunk's last npz could land between the look and the kill)."""
+        build, the chunk's last npz could land between the look and the kill). SIGSTOP is asynchronous: a
+        write or rename in flight completes after ``killpg`` returns, so look only once every thread of the
+        group is stopped (a png landing between the two globs once made a finished frame look half done)."""
         os.killpg(proc.pid, signal.SIGSTOP)
+        deadline = time.monotonic() + 10
+        while not group_stopped(proc.pid):
+            assert time.monotonic() < deadline, "the build's processes did not stop"
+            time.sleep(0.001)
         if list(root.glob("*/left/gt/*.npz")) and half_done():
             return True
         os.killpg(proc.pid, signal.SIGCONT)
