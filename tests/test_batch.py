@@ -391,15 +391,23 @@ def test_local_dask_cluster_gives_byte_identical_ground_truth(reference, capture
 
 
 def group_stopped(pgid: int) -> bool:
-    """Whether every thread of process group ``pgid`` is stopped (or dead), from ``/proc/*/task/*/stat``."""
-    for stat in Path("/proc").glob("[0-9]*/task/*/stat"):
+    """Whether every thread of process group ``pgid`` is stopped (or dead), from ``/proc/*/task/*/stat``.
+
+    A thread that was starting a process (``subprocess`` uses ``vfork``) waits in the kernel, uninterruptibly,
+    for its child to exec; the child is in the group and stopped, so the thread can do nothing either: it counts
+    as stopped.
+    """
+    for task in Path("/proc").glob("[0-9]*/task/*"):
         try:
-            text = stat.read_text()
+            text = (task / "stat").read_text()
+            state, _ppid, group = text[text.rindex(")") + 2:].split()[:3]
+            if int(group) != pgid or state in "TtZX":
+                continue
+            if state == "D" and (task / "wchan").read_text() == "kernel_clone":
+                continue
         except OSError:  # the thread ended while listed
             continue
-        state, _ppid, group = text[text.rindex(")") + 2:].split()[:3]
-        if int(group) == pgid and state not in "TtZX":
-            return False
+        return False
     return True
 
 
