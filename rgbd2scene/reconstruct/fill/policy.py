@@ -1014,8 +1014,12 @@ def band_strips(band: np.ndarray, valid: np.ndarray, stretch: int = BAND_STRETCH
             # the edge at column 0 of each row; views, so that writes go through
             b, v, sb, ss = (_edge_view(a, transpose, flip) for a in (band, valid, seg_band, seg_strip))
             n, m = b.shape
-            run = np.where((~b).any(axis=1), (~b).argmax(axis=1), m)
-            col = np.arange(m)[None, :]
+            off = ~b
+            run = np.where(off.any(axis=1), off.argmax(axis=1), m)
+            # runs and strips lie within twice the longest run of the edge: the rest of the image is left out
+            reach = min(m, 2 * int(run.max()))
+            b, v, sb, ss = b[:, :reach], v[:, :reach], sb[:, :reach], ss[:, :reach]
+            col = np.arange(reach)[None, :]
             cells = col < run[:, None]
             strip = (col >= run[:, None]) & (col < 2 * run[:, None]) & v & ~b & (ss == 0)
             ids = label + 1 + (np.arange(n) * scale) // stretch
