@@ -316,18 +316,26 @@ def nyu_affinities(grey: np.ndarray, nodes: np.ndarray,
         # gathered by flat index (a third of the time of a 2-D index), the same values
         flat, centre, stride = padded.ravel(), (rows + 1) * (w + 2) + cols + 1, w + 2
         nb = np.stack([flat[centre + (dr * stride + dc)] for dr, dc in _OFFSETS8])
-    ok = ~np.isnan(nb)
-    nbz = np.where(ok, nb, 0.0)
-    count = ok.sum(axis=0) + 1.0
+    # the (8, n) arrays are worked on in place (the same operations element by element, so the same bits): each new
+    # one is fresh memory to fault in (TUM frame: 80k pixels, 5 MB each)
+    off = np.isnan(nb)
+    nbz = nb  # np.stack's own copy
+    np.copyto(nbz, 0.0, where=off)
+    count = 8.0 - off.sum(axis=0) + 1.0
     mean = (nbz.sum(axis=0) + grey) / count
-    var = ((np.where(ok, nbz - mean, 0.0) ** 2).sum(axis=0) + (grey - mean) ** 2) / count
-    d2 = np.where(ok, (nbz - grey) ** 2, np.inf)
+    dev = np.subtract(nbz, mean)
+    np.copyto(dev, 0.0, where=off)
+    var = (np.square(dev, out=dev).sum(axis=0) + (grey - mean) ** 2) / count
+    d2 = np.subtract(nbz, grey, out=dev)
+    np.square(d2, out=d2)
+    np.copyto(d2, np.inf, where=off)
     closest = d2.min(axis=0)
-    closest = np.where(np.isfinite(closest), closest, 0.0)
+    closest[~np.isfinite(closest)] = 0.0
     sigma = np.maximum(np.maximum(0.6 * var, closest / -np.log(0.01)), 2e-6)
-    weights = np.exp(-d2 / sigma)  # exp(-inf) = 0 off the graph
+    weights = np.exp(np.divide(np.negative(d2, out=d2), sigma, out=d2), out=d2)  # exp(-inf) = 0 off the graph
     total = weights.sum(axis=0)
-    return weights / np.where(total > 0, total, 1.0)
+    weights /= np.where(total > 0, total, 1.0)
+    return weights
 
 
 def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float,
