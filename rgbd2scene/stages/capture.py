@@ -20,6 +20,7 @@ on the command line, ``captures[0].poses`` in a configuration) or :class:`UserEr
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,7 @@ from rgbd2scene.capture.stereo import (
 from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import OptionError, option
+from rgbd2scene.reconstruct.fill import FillResult
 from rgbd2scene.reconstruct.fusion import FusionOptions, reconstruct_fused
 from rgbd2scene.reconstruct.pipeline import MeshOptions, Reconstruction, reconstruct
 
@@ -250,11 +252,13 @@ def load_inputs(options: CaptureOptions) -> LoadedCapture:
     return LoadedCapture(mode, frames, poses, record, options.fusion_options())
 
 
-def reconstruct_inputs(loaded: LoadedCapture, mesh: MeshOptions | None = None) -> Reconstruction:
+def reconstruct_inputs(loaded: LoadedCapture, mesh: MeshOptions | None = None,
+                       on_filled: Callable[[Capture, FillResult], None] | None = None) -> Reconstruction:
     """The reconstruction of a loaded capture: one frame (RGB-D or stereo) filled, meshed and smoothed, or
-    several fused (fill and smoothing then default to none)."""
+    several fused (fill and smoothing then default to none). ``on_filled``: see
+    :func:`rgbd2scene.reconstruct.pipeline.reconstruct` (fused frames have no fill: not called)."""
     if loaded.mode != "fusion":
-        return reconstruct(loaded.first, mesh)
+        return reconstruct(loaded.first, mesh, on_filled)
     try:
         return reconstruct_fused(loaded.frames, loaded.poses, mesh, loaded.fusion, poses_record=loaded.poses_record)
     except OptionError:
