@@ -272,7 +272,7 @@ def write_sheet(path: str | Path, sheet: np.ndarray) -> Path:
     """Write an overview sheet (:func:`make_overview`) as a PNG, atomically; returns the path."""
     path = Path(path)
     try:
-        write_image(path, sheet)
+        write_image(path, sheet, rle=True)  # flat panels and background: smaller and faster run-length only
     except OSError as exc:
         raise UserError(f"{path}: cannot write the overview image ({exc.strerror or exc})") from None
     return path
