@@ -24,7 +24,6 @@ from rgbd2scene.reconstruct.pipeline import MeshOptions, Reconstruction
 from rgbd2scene.reconstruct.texture import HighlightSettings
 from rgbd2scene.scene import folder
 from rgbd2scene.stages.capture import LoadedCapture, reconstruct_inputs
-from rgbd2scene.versions import software_versions
 
 
 def _highlights_removed(recon: Reconstruction) -> bool:
@@ -34,6 +33,8 @@ def _highlights_removed(recon: Reconstruction) -> bool:
 
 def scene_record(recon: Reconstruction) -> dict:
     """The reconstruction part of scene.json: inputs, intrinsics, scale, settings, statistics, timings."""
+    from rgbd2scene.versions import software_versions
+
     fill = recon.filled
     textured = recon.mesh.texture is not None and recon.mesh.uvs is not None
     files = {"mesh": folder.MESH, "depth_filled": folder.DEPTH_FILLED, "textured_mesh": folder.TEXTURED_MESH,
@@ -102,9 +103,9 @@ def reconstruct_mesh_folder(out_dir: str | Path, loaded: LoadedCapture, options:
     scene.json record (:func:`write_mesh_folder`).
 
     The files that need no mesh (``depth_filled.npy``, ``texture_original.png``, the overview but for its mesh
-    panel: 0.1 s of CPU) are prepared on another thread once the depth is filled, while the mesh is built and
-    smoothed on one core (a single frame's reconstruction; fused frames have no fill, their files are all made
-    at the end).
+    panel: 0.1 s of CPU) and the software versions are prepared on other threads once the depth is filled,
+    while the mesh is built and smoothed on one core (a single frame's reconstruction; fused frames have no
+    fill, their files are all made at the end).
     """
     options = options or MeshOptions()
     out = ensure_output_dir(out_dir)
@@ -115,9 +116,18 @@ def reconstruct_mesh_folder(out_dir: str | Path, loaded: LoadedCapture, options:
             # a single frame's texture is its image without highlights whenever they are to be removed
             prepared.append(pool.submit(_filled_files, capture, filled, options.highlights == "remove",
                                         options.overview))
+            pool.submit(_look_up_versions)
 
         recon = reconstruct_inputs(loaded, options, on_filled=on_filled)
         return recon, _write_folder(out, recon, pool, prepared[0] if prepared else None, finalize)
+
+
+def _look_up_versions() -> None:
+    """The software versions of scene.json looked up ahead, off the main thread (importlib.metadata's import and
+    the look-ups: 30 ms; :func:`rgbd2scene.versions.software_versions` keeps them)."""
+    from rgbd2scene.versions import software_versions
+
+    software_versions()
 
 
 def write_mesh_folder(out_dir: str | Path, recon: Reconstruction, finalize: bool = True) -> dict:
