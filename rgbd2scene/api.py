@@ -24,8 +24,8 @@ a :class:`~rgbd2scene.errors.UserError` naming the file. The command line runs t
 (:func:`run_mesh`, :func:`run_scene` and :func:`run_render` take the options as dataclasses, as it has them).
 
 The stage-level functions stay for finer control: :mod:`rgbd2scene.stages` (``load_inputs``,
-``reconstruct_inputs``, ``write_mesh_folder``, ``build_scene_folder``, ``render_dataset``) and the packages
-named in each function below. Nothing heavy is imported until a call.
+``reconstruct_inputs``, ``write_mesh_folder``, ``reconstruct_mesh_folder``, ``build_scene_folder``,
+``render_dataset``) and the packages named in each function below. Nothing heavy is imported until a call.
 """
 
 from __future__ import annotations
