@@ -24,8 +24,8 @@ a :class:`~rgbd2scene.errors.UserError` naming the file. The command line runs t
 (:func:`run_mesh`, :func:`run_scene` and :func:`run_render` take the options as dataclasses, as it has them).
 
 The stage-level functions stay for finer control: :mod:`rgbd2scene.stages` (``load_inputs``,
-``reconstruct_inputs``, ``write_mesh_folder``, ``build_scene_folder``, ``render_dataset``) and the packages
-named in each function below. Nothing heavy is imported until a call.
+``reconstruct_inputs``, ``write_mesh_folder``, ``reconstruct_mesh_folder``, ``build_scene_folder``,
+``render_dataset``) and the packages named in each function below. Nothing heavy is imported until a call.
 """
 
 from __future__ import annotations
@@ -186,14 +186,13 @@ def run_mesh(output: PathLike, capture, options) -> MeshResult:
     """:func:`mesh` with its options as dataclasses (the command line's entry)."""
     from rgbd2scene.files.atomic import ensure_output_dir
     from rgbd2scene.scene import folder
-    from rgbd2scene.stages.capture import load_inputs, reconstruct_inputs
-    from rgbd2scene.stages.mesh import write_mesh_folder
+    from rgbd2scene.stages.capture import load_inputs
+    from rgbd2scene.stages.mesh import reconstruct_mesh_folder
 
     t0 = time.perf_counter()
     loaded = load_inputs(capture)  # read and checked before anything is written
     out = ensure_output_dir(output)
-    recon = reconstruct_inputs(loaded, options)
-    record = write_mesh_folder(out, recon)
+    recon, record = reconstruct_mesh_folder(out, loaded, options)
     return MeshResult(out, out / folder.MESH, record, recon, time.perf_counter() - t0)
 
 
@@ -216,8 +215,8 @@ def run_scene(output: PathLike, capture, mesh_options, options, mesh_dir: PathLi
     """:func:`scene` with its options as dataclasses (the command line's entry)."""
     from rgbd2scene.files.atomic import ensure_output_dir
     from rgbd2scene.scene import folder
-    from rgbd2scene.stages.capture import load_inputs, reconstruct_inputs
-    from rgbd2scene.stages.mesh import scene_record, write_mesh_folder
+    from rgbd2scene.stages.capture import load_inputs
+    from rgbd2scene.stages.mesh import reconstruct_mesh_folder
     from rgbd2scene.stages.scene import build_scene_folder, load_mesh_folder, scene_config
 
     t0 = time.perf_counter()
@@ -230,9 +229,9 @@ def run_scene(output: PathLike, capture, mesh_options, options, mesh_dir: PathLi
     if loaded is None:
         surface, record = load_mesh_folder(mesh_dir, out)
     else:
-        recon = reconstruct_inputs(loaded, mesh_options)
-        write_mesh_folder(out, recon, finalize=False)  # scene.json comes with the scene
-        surface, record = recon.mesh, scene_record(recon)
+        # scene.json comes with the scene
+        recon, record = reconstruct_mesh_folder(out, loaded, mesh_options, finalize=False)
+        surface = recon.mesh
     record = build_scene_folder(out, surface, record, options, config=config)
     return SceneResult(out, out / folder.SCENE_BLEND, record, time.perf_counter() - t0)
 

@@ -296,6 +296,37 @@ def test_batch_mesh_of_a_fused_entry(tmp_path):
 # --------------------------------------------------------------------------------------------- sensor
 
 
+def test_the_folder_prepared_while_the_mesh_is_built_is_the_folder_written_after_it(inputs, tmp_path):
+    """``reconstruct_mesh_folder`` prepares the files that need no mesh on another thread once the depth is
+    filled; every file must be the one ``write_mesh_folder`` writes from the finished reconstruction."""
+    from rgbd2scene.pictures.overview import make_overview
+    from rgbd2scene.reconstruct.pipeline import MeshOptions
+    from rgbd2scene.stages.capture import reconstruct_inputs
+    from rgbd2scene.stages.mesh import _overview_image, reconstruct_mesh_folder, write_mesh_folder
+
+    depth = cv2.imread(str(inputs / "depth0.png"), cv2.IMREAD_UNCHANGED)
+    depth[10:20, 30:40] = 0  # a hole to fill
+    cv2.imwrite(str(tmp_path / "holey.png"), depth)
+    loaded = load_inputs(CaptureOptions(rgb=[str(inputs / "rgb0.png")], depth=[str(tmp_path / "holey.png")],
+                                        camera=str(inputs / "camera.json")))
+    called = []
+    recon, _ = reconstruct_mesh_folder(tmp_path / "early", loaded, MeshOptions(fill="biharmonic"))
+    recon_after = reconstruct_inputs(loaded, MeshOptions(fill="biharmonic"), on_filled=lambda *a: called.append(a))
+    assert len(called) == 1 and called[0][1].method == recon_after.filled.method
+    write_mesh_folder(tmp_path / "after", recon_after)
+    early, after = sorted((tmp_path / "early").iterdir()), sorted((tmp_path / "after").iterdir())
+    assert [p.name for p in early] == [p.name for p in after]
+    assert {"overview.png", "texture_original.png", "depth_filled.npy"} <= {p.name for p in early}
+    for a, b in zip(early, after, strict=True):
+        if a.name != "scene.json":  # its times differ
+            assert a.read_bytes() == b.read_bytes(), a.name
+    assert np.array_equal(recon.mesh.vertices, recon_after.mesh.vertices)
+    # and the overview is the one drawn in one go from the finished reconstruction
+    sheet = make_overview(recon.capture.rgb, recon.capture.depth, recon.filled.depth.astype(np.float32),
+                          _overview_image(recon), title="rgb0.png")
+    assert np.array_equal(cv2.imread(str(tmp_path / "early" / "overview.png"))[..., ::-1], sheet)
+
+
 def test_sensor_inference_rules():
     room = np.full((48, 64), 2.0, np.float32)
     organ = np.full((48, 64), 0.08, np.float32)

@@ -154,6 +154,21 @@ def test_the_mesh_command_loads_no_scene_model_paths_or_dataset_and_package_name
     assert result.returncode == 0, result.stderr[-2000:]
 
 
+def test_a_single_frame_mesh_loads_no_fusion_or_trajectory():
+    """Fusion (its ray caster, SciPy's graph routines) and trajectory files serve several frames only: the capture
+    and mesh stages import them when a capture has several frames, not at the start of every ``rgbd2scene mesh``
+    (25 ms of imports where no bytecode is cached); the software versions (importlib.metadata) are looked up on a
+    worker thread during the reconstruction."""
+    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
+            "cli.build_parser('mesh')\n"
+            "loaded = {'rgbd2scene.reconstruct.fusion', 'rgbd2scene.capture.trajectory',\n"
+            "          'rgbd2scene.geometry.raycast', 'scipy.sparse.csgraph',\n"
+            "          'rgbd2scene.versions'} & set(sys.modules)\n"
+            "assert not loaded, loaded\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
 def test_a_lazy_package_name_is_its_submodule_object_at_every_access():
     """A package name is the object its submodule defines, at the first access and at every later one, also where
     its submodule is imported directly (``rgbd2scene.pictures.preview``; a name that was its submodule's would

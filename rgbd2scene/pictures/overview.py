@@ -23,6 +23,7 @@ from rgbd2scene.geometry.mesh import vertex_normals
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 BACKGROUND = (28, 28, 28)  # RGB
 TEXT = (235, 235, 235)
+MESH_LABEL = "mesh (rendered, rotated view)"
 
 
 # --------------------------------------------------------------------------------------------------
@@ -170,6 +171,29 @@ def make_overview(
     panel_width: int = 480,
 ) -> np.ndarray:
     """The contact sheet as an RGB uint8 array (see ``write_overview``)."""
+    sheet, mesh_cell = overview_sheet(rgb, raw_depth, filled_depth, mesh_image is not None, title, panel_width)
+    if mesh_image is not None:
+        put_mesh_panel(sheet, mesh_cell, mesh_image)
+    return sheet
+
+
+def put_mesh_panel(sheet: np.ndarray, cell: tuple[int, int, int, int], mesh_image: np.ndarray) -> None:
+    """Draw the mesh rendering into its ``cell`` ``(x, y, w, h)`` of a sheet from :func:`overview_sheet`."""
+    x, y, pw, ph = cell
+    sheet[y:y + ph, x:x + pw] = label_panel(fit_cell(_as_rgb_u8(mesh_image, "mesh_image"), pw, ph), MESH_LABEL)
+
+
+def overview_sheet(
+    rgb: np.ndarray,
+    raw_depth: np.ndarray,
+    filled_depth: np.ndarray,
+    mesh_panel: bool,
+    title: str | None = None,
+    panel_width: int = 480,
+) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
+    """The contact sheet without the mesh rendering, and the cell ``(x, y, w, h)`` left for it (None
+    without ``mesh_panel``): the mesh stage draws the rest while the mesh is still being built and smoothed.
+    No other drawing overlaps that cell, so :func:`put_mesh_panel` completes the same picture."""
     rgb = _as_rgb_u8(rgb, "rgb")
     raw = np.asarray(raw_depth, dtype=np.float32)
     filled = np.asarray(filled_depth, dtype=np.float32)
@@ -196,18 +220,16 @@ def make_overview(
         (mask_img, f"hole mask: {hole_pct:.1f} % missing"),
         (colorize_depth(filled, vmin, vmax), filled_label),
     ]
-    if mesh_image is not None:
-        panels.append((_as_rgb_u8(mesh_image, "mesh_image"), "mesh (rendered, rotated view)"))
-
-    width, height, boxes = overview_layout(len(panels), w, h, panel_width)
+    n_panels = len(panels) + bool(mesh_panel)
+    width, height, boxes = overview_layout(n_panels, w, h, panel_width)
     pw, ph = boxes[0][2], boxes[0][3]
     sheet = np.full((height, width, 3), BACKGROUND, np.uint8)
     for (img, label), (x, y, _, _) in zip(panels, boxes, strict=False):
         sheet[y:y + ph, x:x + pw] = label_panel(fit_cell(img, pw, ph), label)
     bar_h = boxes[-1][1] + ph - boxes[0][1]
     bar = colour_bar(bar_h, vmin, vmax, BAR_W)
-    if len(panels) < len(boxes):  # spare cell: the numbers behind the pictures
-        x, y = boxes[len(panels)][:2]
+    if n_panels < len(boxes):  # spare cell: the numbers behind the pictures
+        x, y = boxes[n_panels][:2]
         finite = filled[np.isfinite(filled)]
         lines = [f"size {w} x {h} px", f"holes {holes.sum()} px ({hole_pct:.2f} %)",
                  f"colour scale {vmin * factor:.4g} - {vmax * factor:.4g} {unit}"]
@@ -217,7 +239,7 @@ def make_overview(
             put_text(sheet, line, (x + 14, y + 34 + 28 * k), 0.55)
     sheet[boxes[0][1]:boxes[0][1] + bar_h, width - BAR_W:] = bar
     put_text(sheet, title or "rgbd2scene overview", (GAP + 4, 28), 0.75, thickness=2)
-    return sheet
+    return sheet, boxes[len(panels)] if mesh_panel else None
 
 
 def write_overview(
@@ -243,10 +265,14 @@ def write_overview(
 
     Returns the path written.
     """
+    return write_sheet(path, make_overview(rgb, raw_depth, filled_depth, mesh_image, title, panel_width))
+
+
+def write_sheet(path: str | Path, sheet: np.ndarray) -> Path:
+    """Write an overview sheet (:func:`make_overview`) as a PNG, atomically; returns the path."""
     path = Path(path)
-    sheet = make_overview(rgb, raw_depth, filled_depth, mesh_image, title, panel_width)
     try:
-        write_image(path, sheet)
+        write_image(path, sheet, rle=True)  # flat panels and background: smaller and faster run-length only
     except OSError as exc:
         raise UserError(f"{path}: cannot write the overview image ({exc.strerror or exc})") from None
     return path

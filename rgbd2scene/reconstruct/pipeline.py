@@ -10,6 +10,7 @@ Writing the results is the mesh stage's job (``rgbd2scene.stages.mesh``).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -79,7 +80,8 @@ def restrict_to_image(filled: FillResult, image_mask: np.ndarray) -> FillResult:
     return replace(filled, depth=depth, filled=filled.filled & image_mask, stats=stats, parts=parts)
 
 
-def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconstruction:
+def reconstruct(capture: Capture, options: MeshOptions | None = None,
+                on_filled: Callable[[Capture, FillResult], None] | None = None) -> Reconstruction:
     """Fill holes, back-project into a grid mesh without curtains, and smooth along the viewing rays.
 
     The mesh is built in the capture camera's frame and then placed in the world frame by
@@ -87,6 +89,8 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     fill's shadow prior) is ``options.sensor``, else inferred from the capture
     (:func:`rgbd2scene.capture.sensors.infer_sensor`); ``sections["depth_sensor"]`` records which and why, and
     under ``"shadows"`` whether the fill took shadows from this capture and why (the fill's statistics).
+    ``on_filled(capture, filled)``, when given, is called as soon as the depth is filled: the mesh stage prepares
+    its files that need no mesh there, on another core, while this one builds and smooths the mesh.
     """
     options = options or MeshOptions()
     stereo = capture.depth_format == "stereo"
@@ -107,6 +111,8 @@ def reconstruct(capture: Capture, options: MeshOptions | None = None) -> Reconst
     if capture.image_mask is not None:
         filled = restrict_to_image(filled, capture.image_mask)
     timings["fill_s"] = time.perf_counter() - t0
+    if on_filled is not None:
+        on_filled(capture, filled)
 
     t0 = time.perf_counter()
     texture, highlights = remove_highlights(capture.rgb, options.highlights)

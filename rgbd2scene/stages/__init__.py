@@ -12,7 +12,7 @@ _STAGE_OF = {
     "Task": "blender", "TaskResult": "blender", "run_task": "blender",
     "CaptureOptions": "capture", "LoadedCapture": "capture", "check_inputs": "capture", "load_inputs": "capture",
     "reconstruct_inputs": "capture",
-    "scene_record": "mesh", "write_mesh_folder": "mesh",
+    "reconstruct_mesh_folder": "mesh", "scene_record": "mesh", "write_mesh_folder": "mesh",
     "RenderOptions": "render", "render_dataset": "render",
     "SceneOptions": "scene", "build_scene_folder": "scene", "load_mesh_folder": "scene",
 }

@@ -20,8 +20,10 @@ on the command line, ``captures[0].poses`` in a configuration) or :class:`UserEr
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,11 +36,15 @@ from rgbd2scene.capture.stereo import (
     load_stereo_capture,
     read_stereo_calibration,
 )
-from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
 from rgbd2scene.errors import UserError
 from rgbd2scene.options import OptionError, option
-from rgbd2scene.reconstruct.fusion import FusionOptions, reconstruct_fused
+from rgbd2scene.reconstruct.fill import FillResult
 from rgbd2scene.reconstruct.pipeline import MeshOptions, Reconstruction, reconstruct
+
+# Fusion (its ray caster, SciPy's graph routines) and trajectory files serve several frames only: imported where
+# a capture has several, not at the start of every command
+if TYPE_CHECKING:
+    from rgbd2scene.reconstruct.fusion import FusionOptions
 
 INPUT = "capture (an RGB-D frame, several frames to fuse, or a stereo frame)"
 FUSION = "fusion of several frames"
@@ -152,6 +158,8 @@ class CaptureOptions:
         return stereo
 
     def fusion_options(self) -> FusionOptions:
+        from rgbd2scene.reconstruct.fusion import FusionOptions
+
         fusion = FusionOptions(voxel_size=self.voxel_size)
         if self.min_frames is not None:
             fusion.min_frames = self.min_frames
@@ -182,6 +190,8 @@ class LoadedCapture:
 def read_poses(path: str, frames: list[str]) -> tuple[np.ndarray, dict]:
     """Poses of ``frames`` (file names, in order) from the trajectory ``path``, relative to the first frame,
     and their scene.json record; :class:`OptionError` on ``poses`` naming the file and the problem."""
+    from rgbd2scene.capture.trajectory import associate, read_trajectory, relative_to_first
+
     try:
         trajectory = read_trajectory(path)
         match = associate(trajectory, frames)
@@ -250,11 +260,15 @@ def load_inputs(options: CaptureOptions) -> LoadedCapture:
     return LoadedCapture(mode, frames, poses, record, options.fusion_options())
 
 
-def reconstruct_inputs(loaded: LoadedCapture, mesh: MeshOptions | None = None) -> Reconstruction:
+def reconstruct_inputs(loaded: LoadedCapture, mesh: MeshOptions | None = None,
+                       on_filled: Callable[[Capture, FillResult], None] | None = None) -> Reconstruction:
     """The reconstruction of a loaded capture: one frame (RGB-D or stereo) filled, meshed and smoothed, or
-    several fused (fill and smoothing then default to none)."""
+    several fused (fill and smoothing then default to none). ``on_filled``: see
+    :func:`rgbd2scene.reconstruct.pipeline.reconstruct` (fused frames have no fill: not called)."""
     if loaded.mode != "fusion":
-        return reconstruct(loaded.first, mesh)
+        return reconstruct(loaded.first, mesh, on_filled)
+    from rgbd2scene.reconstruct.fusion import reconstruct_fused
+
     try:
         return reconstruct_fused(loaded.frames, loaded.poses, mesh, loaded.fusion, poses_record=loaded.poses_record)
     except OptionError:
