@@ -444,12 +444,14 @@ def test_kill_9_then_resume_equals_an_uninterrupted_build(reference, captures):
         return False
 
     deadline = time.monotonic() + 600
-    while not stopped_mid_chunk():
-        assert proc.poll() is None, "the build ended before it was killed"
-        assert time.monotonic() < deadline
-        time.sleep(0.02)
-    os.killpg(proc.pid, signal.SIGKILL)
-    proc.wait()
+    try:
+        while not stopped_mid_chunk():
+            assert proc.poll() is None, "the build ended before it was killed"
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+    finally:  # killed mid-chunk, or the test failed: nothing is left running (or stopped) behind it
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
     time.sleep(0.5)  # the killed Blender workers' files
     assert list(root.glob("*/.work/*")), "the killed worker left no scratch folder to sweep"
     assert half_done(), "no frame had its images but not its ground truth (or the reverse) when killed"
