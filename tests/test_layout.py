@@ -118,11 +118,21 @@ def test_geometry_imports_only_the_conventions():
     assert set(_package_imports()["geometry"]) <= {"conventions", "errors", "lazy"}
 
 
+#: What the start of ``rgbd2scene mesh`` imports: the capture and mesh stages and the command line's parser.
+MESH_START = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
+              "cli.build_parser('mesh')\n")
+
+
+def _run_fresh(code: str) -> None:
+    """Run ``code`` in a fresh interpreter (what it imports is the code's own); fail with its error output."""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
 def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
     """``rgbd2scene mesh`` imports the capture and mesh stages only (the scene, render and Blender stages cost
     a few tenths of a second at every start); ``rgbd2scene.stages.X`` still gives every documented name."""
-    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
-            "cli.build_parser('mesh')\n"
+    code = (MESH_START +
             "loaded = sorted(m for m in sys.modules if m.startswith('rgbd2scene.stages.'))\n"
             "assert loaded == ['rgbd2scene.stages.capture', 'rgbd2scene.stages.mesh'], loaded\n"
             "import rgbd2scene.stages as stages\n"
@@ -130,17 +140,15 @@ def test_a_stage_loads_without_the_others_and_the_package_names_all_resolve():
             "    assert getattr(stages, name).__module__.startswith('rgbd2scene.'), name\n"
             "from rgbd2scene.stages import RenderOptions, build_scene_folder\n"
             "assert not hasattr(stages, 'no_such_name')\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
-    assert result.returncode == 0, result.stderr[-2000:]
+    _run_fresh(code)
 
 
 def test_the_mesh_command_loads_no_scene_model_paths_or_dataset_and_package_names_resolve():
     """``rgbd2scene mesh`` needs only ``scene.folder`` and the overview of the pictures: the scene model, the
     camera paths, the contact sheet and the dataset reader are not imported at its start (nor compiled, where
     no bytecode is cached); every name the scene, geometry and pictures packages list still resolves."""
-    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
+    code = (MESH_START +
             "import rgbd2scene.pictures.overview\n"
-            "cli.build_parser('mesh')\n"
             "loaded = sorted(m for m in sys.modules if m.startswith(('rgbd2scene.scene.', 'rgbd2scene.dataset',\n"
             "                                                       'rgbd2scene.pictures.')))\n"
             "assert loaded == ['rgbd2scene.pictures.overview', 'rgbd2scene.scene.folder'], loaded\n"
@@ -150,8 +158,7 @@ def test_the_mesh_command_loads_no_scene_model_paths_or_dataset_and_package_name
             "        assert getattr(package, name) is not None, name\n"
             "    assert not hasattr(package, 'no_such_name')\n"
             "from rgbd2scene.scene import SceneDescription, folder\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
-    assert result.returncode == 0, result.stderr[-2000:]
+    _run_fresh(code)
 
 
 def test_a_single_frame_mesh_loads_no_fusion_or_trajectory():
@@ -159,14 +166,12 @@ def test_a_single_frame_mesh_loads_no_fusion_or_trajectory():
     and mesh stages import them when a capture has several frames, not at the start of every ``rgbd2scene mesh``
     (25 ms of imports where no bytecode is cached); the software versions (importlib.metadata) are looked up on a
     worker thread during the reconstruction."""
-    code = ("import sys, rgbd2scene.stages.capture, rgbd2scene.stages.mesh, rgbd2scene.cli as cli\n"
-            "cli.build_parser('mesh')\n"
+    code = (MESH_START +
             "loaded = {'rgbd2scene.reconstruct.fusion', 'rgbd2scene.capture.trajectory',\n"
             "          'rgbd2scene.geometry.raycast', 'scipy.sparse.csgraph',\n"
             "          'rgbd2scene.versions'} & set(sys.modules)\n"
             "assert not loaded, loaded\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
-    assert result.returncode == 0, result.stderr[-2000:]
+    _run_fresh(code)
 
 
 def test_a_lazy_package_name_is_its_submodule_object_at_every_access():
@@ -184,5 +189,4 @@ def test_a_lazy_package_name_is_its_submodule_object_at_every_access():
             "assert callable(preview), preview\n"
             "import rgbd2scene.pictures.mesh_preview\n"
             "assert rgbd2scene.pictures.preview is preview\n")
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
-    assert result.returncode == 0, result.stderr[-2000:]
+    _run_fresh(code)
