@@ -26,9 +26,16 @@ from rgbd2scene.scene import folder
 from rgbd2scene.stages.capture import LoadedCapture, reconstruct_inputs
 
 
+def _removes_highlights(options: MeshOptions) -> bool:
+    """Whether a single frame's texture is its image without its highlights (``texture_original.png`` keeps the
+    image as captured)."""
+    return options.highlights == "remove"
+
+
 def _highlights_removed(recon: Reconstruction) -> bool:
-    """Whether the texture is the capture image without its highlights (a single frame; fusion averages)."""
-    return recon.options.highlights == "remove" and "texture" in recon.stats
+    """:func:`_removes_highlights` for a finished reconstruction: a single frame's (fusion averages, no texture
+    statistics)."""
+    return _removes_highlights(recon.options) and "texture" in recon.stats
 
 
 def scene_record(recon: Reconstruction) -> dict:
@@ -113,8 +120,7 @@ def reconstruct_mesh_folder(out_dir: str | Path, loaded: LoadedCapture, options:
         prepared: list[Future] = []
 
         def on_filled(capture: Capture, filled: FillResult) -> None:
-            # a single frame's texture is its image without highlights whenever they are to be removed
-            prepared.append(pool.submit(_filled_files, capture, filled, options.highlights == "remove",
+            prepared.append(pool.submit(_filled_files, capture, filled, _removes_highlights(options),
                                         options.overview))
             pool.submit(_look_up_versions)
 

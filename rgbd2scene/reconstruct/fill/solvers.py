@@ -470,11 +470,9 @@ def _spd_solve(A: sparse.csc_matrix, b: np.ndarray, ordered: bool = False) -> np
 
     The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.40 s
     against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.49 s; the solution agrees to 1e-10
-    (float32 fills within an ulp). Looked at and not used: a geometric nested dissection of the pixels
-    (separators two pixels wide, the stencil's reach) with SuperLU's natural order, 0.25 s but 0.04-0.06 s to
-    order in Python; other ``relax`` and ``panel_size`` settings (within the noise). (Session 19 measured that
-    dissection, :func:`dissection_order`, at 6.9M entries and about as fast as the minimum degree's 5.2M
-    here; the guided thin plate's 5 x 5 stencil gains by it.)"""
+    (float32 fills within an ulp). Its unknowns in :func:`dissection_order` (``ordered``) give 6.9M entries and
+    no faster a solve, so this system keeps the minimum degree; the guided thin plate's 5 x 5 stencil gains by
+    the dissection (4.0M against 4.7M). Other ``relax`` and ``panel_size`` settings: within the noise."""
     return _diagonal_pivot_lu(A, ordered).solve(b)
 
 
