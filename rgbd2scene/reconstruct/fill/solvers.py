@@ -915,7 +915,8 @@ def _membrane(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.nda
     jj.append(np.arange(n))
     vv.append(deg)
     A = sparse.csr_matrix((np.concatenate(vv), (np.concatenate(ii), np.concatenate(jj))), shape=(n, n))
-    x = spsolve(A.tocsc(), rhs)
+    # symmetric positive definite: every unknown pixel is connected to a known one (_smooth_fill)
+    x = _spd_solve(A.tocsc(), rhs)
     out = np.zeros(shape)
     out[rows, cols] = x
     return out
