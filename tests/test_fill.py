@@ -219,8 +219,9 @@ def test_spd_solve_is_a_cholesky_that_agrees_with_a_direct_solve(monkeypatch):
         assert np.linalg.norm(x - ref) <= 1e-9 * np.linalg.norm(ref)
 
 
-def test_spd_solve_falls_back_to_lu_where_the_matrix_is_not_positive_definite():
-    # symmetric with a positive diagonal but indefinite: CHOLMOD says so, _spd_solve warns and solves it by LU
+def test_spd_solve_falls_back_to_lu_where_the_matrix_is_not_positive_definite(monkeypatch):
+    # symmetric with a positive diagonal but indefinite: CHOLMOD says so, _spd_solve warns and solves it by LU; and
+    # the same where CHOLMOD is missing
     from scipy import sparse
 
     from rgbd2scene.reconstruct.fill import cholmod, solvers
@@ -229,6 +230,10 @@ def test_spd_solve_falls_back_to_lu_where_the_matrix_is_not_positive_definite():
     with pytest.raises(cholmod.NotPositiveDefinite):
         cholmod.spd_solve(a, b)
     with pytest.warns(RuntimeWarning, match="not positive definite"):
+        x = solvers._spd_solve(a, b)
+    np.testing.assert_allclose(a @ x, b, rtol=1e-12)
+    monkeypatch.setattr(cholmod, "available", lambda: False)
+    with pytest.warns(RuntimeWarning, match="not available"):
         x = solvers._spd_solve(a, b)
     np.testing.assert_allclose(a @ x, b, rtol=1e-12)
 

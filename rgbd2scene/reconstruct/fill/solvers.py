@@ -476,13 +476,13 @@ def _spd_solve(A: sparse.csc_matrix, b: np.ndarray, ordered: bool = False) -> np
     SuperLU's LU without row exchanges (:func:`_diagonal_pivot_lu`), the guided thin plate (26.8k, ``ordered``)
     0.04-0.06 s against 0.16-0.17 s; the solutions agree to 1e-10 relative (the guided plate, whose 1e-12 nudge
     leaves it ill-conditioned, to 1e-6 relative, both with residuals of 2e-15). Where CHOLMOD meets a pivot that
-    is not positive (A only semi-definite in floating point) or cannot run (no cvxopt), a warning says so and
-    SuperLU's LU solves it as before."""
+    is not positive (A only semi-definite in floating point) or cannot run (no cvxopt; out of memory), a warning
+    says so and SuperLU's LU solves it as before."""
     reason = "CHOLMOD (cvxopt) is not available"
     if cholmod.available():
         try:
             return cholmod.spd_solve(A, b, cholmod.NATURAL if ordered else cholmod.AMD)
-        except cholmod.NotPositiveDefinite as err:
+        except (cholmod.NotPositiveDefinite, RuntimeError) as err:  # RuntimeError: out of memory, or too large
             reason = f"CHOLMOD: {err}"
     warnings.warn(f"{reason}: solved by SuperLU's LU instead", RuntimeWarning, stacklevel=2)
     return _diagonal_pivot_lu(A, ordered).solve(b)
