@@ -150,27 +150,107 @@ def test_biharmonic_is_exact_on_a_plane():
     np.testing.assert_allclose(out[mask], truth[mask], rtol=1e-5)
 
 
-def test_thin_plate_with_diagonal_pivots_equals_the_partial_pivoting_solve(monkeypatch):
-    # _spd_solve (a minimum degree ordering of A + A^T, the diagonal as pivots) against SuperLU's default (COLAMD,
-    # partial pivoting), on holes, a band at the image edge (a free boundary) and a hole crossed by a one-pixel
-    # line of valid depth (the near-degenerate case the Tikhonov term is there for)
+def _plate_mask() -> np.ndarray:
+    """Holes, a band at the image edge (a free boundary) and a hole crossed by a one-pixel line of valid depth (the
+    near-degenerate case the thin plate's Tikhonov term is there for)."""
+    mask = blobs(4, n=5, r=6)
+    mask[:, :12] = True
+    crossed = disc(60, 100, 14)
+    crossed[60, :] = False
+    return mask | crossed
+
+
+def test_thin_plate_by_cholesky_equals_the_partial_pivoting_solve(monkeypatch):
+    # _spd_solve (CHOLMOD's Cholesky in minimum degree order) against SuperLU's default (COLAMD, partial pivoting)
+    import warnings
+
     from scipy.sparse.linalg import spsolve
 
     from rgbd2scene.reconstruct.fill import solvers
 
     truth = smooth_surface()
-    mask = blobs(4, n=5, r=6)
-    mask[:, :12] = True
-    crossed = disc(60, 100, 14)
-    crossed[60, :] = False
-    mask |= crossed
+    mask = _plate_mask()
     depth = np.where(mask, np.nan, truth).astype(np.float32)
-    ours = fill_biharmonic(depth, mask)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no fallback to SuperLU
+        ours = fill_biharmonic(depth, mask)
     monkeypatch.setattr(solvers, "_spd_solve", lambda a, b: spsolve(a, b))
     ref = fill_biharmonic(depth, mask)
     assert np.isfinite(ours[mask]).all()
     np.testing.assert_allclose(ours[mask], ref[mask], rtol=1e-6)
     assert np.array_equal(ours[~mask], depth[~mask])
+
+
+def _captured_systems(monkeypatch, fill) -> list:
+    """The (A, b, ordered) of every _spd_solve call of ``fill()``."""
+    from rgbd2scene.reconstruct.fill import solvers
+    systems, solve = [], solvers._spd_solve
+
+    def capture(a, b, ordered=False):
+        systems.append((a, b, ordered))
+        return solve(a, b, ordered)
+    monkeypatch.setattr(solvers, "_spd_solve", capture)
+    fill()
+    monkeypatch.undo()
+    return systems
+
+
+def test_spd_solve_is_a_cholesky_that_agrees_with_a_direct_solve(monkeypatch):
+    # the thin plate's, the guided thin plate's (in its dissection order) and the membrane's systems: CHOLMOD runs
+    # (no warning, no SuperLU) and its solution is SuperLU's partial pivoting one to 1e-9 relative
+    import warnings
+
+    from scipy.sparse.linalg import spsolve
+
+    from rgbd2scene.reconstruct.fill import cholmod, solvers
+    assert cholmod.available()
+    truth, depth, rgb, hole, left = _colour_edge_at_a_step(
+        lambda u, v, left: 1.0 / np.where(left, 0.5 + 0.006 * u, 1.0 + 0.001 * v), noise=3)
+    plate_depth = np.where(_plate_mask(), np.nan, smooth_surface()).astype(np.float32)
+    systems = (_captured_systems(monkeypatch, lambda: fill_biharmonic(plate_depth))
+               + _captured_systems(monkeypatch, lambda: fill_guided_thin_plate(depth, rgb))
+               + _captured_systems(monkeypatch, lambda: fill_harmonic(plate_depth)))
+    assert [o for _, _, o in systems] == [False, True, False]
+    for a, b, ordered in systems:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            x = solvers._spd_solve(a, b, ordered)
+        ref = spsolve(a.tocsc(), b)
+        assert np.linalg.norm(x - ref) <= 1e-9 * np.linalg.norm(ref)
+
+
+def test_spd_solve_falls_back_to_lu_where_the_matrix_is_not_positive_definite(monkeypatch):
+    # symmetric with a positive diagonal but indefinite: CHOLMOD says so, _spd_solve warns and solves it by LU; and
+    # the same where CHOLMOD is missing
+    from scipy import sparse
+
+    from rgbd2scene.reconstruct.fill import cholmod, solvers
+    a = sparse.csc_matrix(np.array([[2.0, 3.0, 0.0], [3.0, 2.0, 1.0], [0.0, 1.0, 2.0]]))
+    b = np.array([1.0, 2.0, 3.0])
+    with pytest.raises(cholmod.NotPositiveDefinite):
+        cholmod.spd_solve(a, b)
+    with pytest.warns(RuntimeWarning, match="not positive definite"):
+        x = solvers._spd_solve(a, b)
+    np.testing.assert_allclose(a @ x, b, rtol=1e-12)
+    monkeypatch.setattr(cholmod, "available", lambda: False)
+    with pytest.warns(RuntimeWarning, match="not available"):
+        x = solvers._spd_solve(a, b)
+    np.testing.assert_allclose(a @ x, b, rtol=1e-12)
+
+
+def test_spd_solves_side_by_side_equal_one_at_a_time():
+    # each CHOLMOD call has its own workspace (and releases the interpreter's lock): four thin plates solved by two
+    # threads at once are the ones solved one after the other, bit for bit
+    from scipy import sparse
+
+    from rgbd2scene.reconstruct.fill import cholmod
+    lap = sparse.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(60, 60))
+    grid = sparse.kronsum(lap, lap).tocsc()
+    systems = [((grid @ grid) + sparse.identity(3600) * 10.0 ** -k, np.cos(np.arange(3600) * k)) for k in range(4)]
+    alone = [cholmod.spd_solve(a, b) for a, b in systems]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        together = list(pool.map(lambda s: cholmod.spd_solve(*s), systems))
+    assert all(np.array_equal(x, y) for x, y in zip(alone, together, strict=True))
 
 
 def test_row_background_takes_the_far_end_of_each_run():

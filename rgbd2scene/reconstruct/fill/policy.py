@@ -195,9 +195,11 @@ before then are on the narrower splits.
 
 Time: all of ``auto``'s solves share one pool of a thread per core, the longest (the thin plate of holes
 and band, the guided holes' fills) started before the evidence is in, the band's other fills as soon as its
-own evidence is in (not after the holes'); the symmetric positive definite systems are factorised with a
-minimum degree ordering. On the TUM frame's own holes (640x480, 2 cores), session 10: 0.76-0.88 s wall,
-1.30-1.51 s CPU (``benchmarks/results/fill.md``). The white-noise test (5.) costs about 0.01 s CPU; the smoothed
+own evidence is in (not after the holes'); the symmetric positive definite systems (the thin plates, the
+membrane) are factorised by CHOLMOD's supernodal Cholesky (:mod:`~rgbd2scene.reconstruct.fill.cholmod`), the
+NYU colorization's unknowns (not symmetric) by SuperLU. On the TUM frame's own holes (640x480, 2 cores), session
+21: 0.60 s wall warm, 0.71 s in a fresh process, 1.09-1.27 s CPU (session 20's LU: 0.83 s, 0.98 s, 1.51-1.82 s;
+``benchmarks/results/fill.md``). The white-noise test (5.) costs about 0.01 s CPU; the smoothed
 rim, where it is made, about 0.15-0.2 s more (the tissue sample's own holes), made while the guided holes'
 fills run.
 

@@ -25,12 +25,15 @@ toolbox's works on inverse depth, where a plane is affine in pixel coordinates; 
 
 from __future__ import annotations
 
+import warnings
+
 import cv2
 import numpy as np
 from scipy import ndimage as ndi
 from scipy import sparse
 from scipy.sparse.linalg import LinearOperator, gmres, splu, spsolve
 
+from rgbd2scene.reconstruct.fill import cholmod
 from rgbd2scene.reconstruct.fill.holes import (
     STEP,
     near_exclusion,
@@ -465,14 +468,23 @@ def _diagonal_pivot_lu(A: sparse.csc_matrix, ordered: bool = False):
 
 
 def _spd_solve(A: sparse.csc_matrix, b: np.ndarray, ordered: bool = False) -> np.ndarray:
-    """Solve A x = b for a symmetric positive definite A (:func:`_diagonal_pivot_lu`: an SPD matrix needs no
-    row exchanges; ``ordered``: its unknowns in elimination order already).
+    """Solve A x = b for a symmetric positive definite A by a supernodal sparse Cholesky factorisation (CHOLMOD,
+    :mod:`~rgbd2scene.reconstruct.fill.cholmod`) in approximate minimum degree order, or, ``ordered``, in the
+    order of A's unknowns (:func:`dissection_order`).
 
-    The TUM frame's joint thin plate of holes and band (57696 unknowns): 5.2M entries in L + U and 0.29-0.40 s
-    against ``spsolve``'s COLAMD with partial pivoting, 7.2M and 0.38-0.49 s; the solution agrees to 1e-10
-    (float32 fills within an ulp). Its unknowns in :func:`dissection_order` (``ordered``) give 6.9M entries and
-    no faster a solve, so this system keeps the minimum degree; the guided thin plate's 5 x 5 stencil gains by
-    the dissection (4.0M against 4.7M). Other ``relax`` and ``panel_size`` settings: within the noise."""
+    The TUM frame's joint thin plate of holes and band (57696 unknowns): 0.10-0.13 s CPU against 0.35-0.45 s for
+    SuperLU's LU without row exchanges (:func:`_diagonal_pivot_lu`), the guided thin plate (26.8k, ``ordered``)
+    0.04-0.06 s against 0.16-0.17 s; the solutions agree to 1e-10 relative (the guided plate, whose 1e-12 nudge
+    leaves it ill-conditioned, to 1e-6 relative, both with residuals of 2e-15). Where CHOLMOD meets a pivot that
+    is not positive (A only semi-definite in floating point) or cannot run (no cvxopt; out of memory), a warning
+    says so and SuperLU's LU solves it as before."""
+    reason = "CHOLMOD (cvxopt) is not available"
+    if cholmod.available():
+        try:
+            return cholmod.spd_solve(A, b, cholmod.NATURAL if ordered else cholmod.AMD)
+        except (cholmod.NotPositiveDefinite, RuntimeError) as err:  # RuntimeError: out of memory, or too large
+            reason = f"CHOLMOD: {err}"
+    warnings.warn(f"{reason}: solved by SuperLU's LU instead", RuntimeWarning, stacklevel=2)
     return _diagonal_pivot_lu(A, ordered).solve(b)
 
 
@@ -658,8 +670,8 @@ def _guided_plate_solver(grey: np.ndarray, contrast: float, floor: float):
         is_u = unknown[tr, tc]
         ur, uc = tr[is_u], tc[is_u]
         # the unknowns in nested dissection order (each term spans 3 x 3 pixels, so A couples pixels up to 2 px apart):
-        # on the TUM frame's 27k unknowns 4.0M entries in L + U against the minimum degree's 4.7M, and no ordering
-        # within SuperLU (its minimum degree on this stencil about 0.1 s): the solve about 0.4 s -> 0.25 s
+        # on the TUM frame's 27k unknowns CHOLMOD's factorisation and solve in this order 39-41 ms CPU against 72-75 ms
+        # in its minimum degree order (with SuperLU: 4.0M entries in L + U against 4.7M, 0.25 s against 0.4 s)
         order = dissection_order(ur, uc, reach=2)
         Bu, Bk = _split_columns(np.concatenate(vv), np.concatenate(ii), np.concatenate(jj), rows, is_u, order)
         A = (Bu.T @ Bu).tocsc()
@@ -667,7 +679,7 @@ def _guided_plate_solver(grey: np.ndarray, contrast: float, floor: float):
         # a nudge relative to the diagonal keeps degenerate holes solvable (and a plane exact where all weights
         # are near the floor: an absolute one would pull such a hole towards zero)
         A = A + sparse.diags(1e-12 * np.maximum(A.diagonal(), 1e-300), format="csc")
-        # SPD: a symmetric ordering without pivoting (TUM frame, 28k unknowns: 0.2 s; COLAMD 0.46 s)
+        # SPD: a Cholesky factorisation
         out = np.zeros(shape)
         out[ur[order], uc[order]] = _spd_solve(A, b, ordered=True)
         return out
@@ -903,7 +915,8 @@ def _membrane(inv: np.ndarray, unknown: np.ndarray, known: np.ndarray) -> np.nda
     jj.append(np.arange(n))
     vv.append(deg)
     A = sparse.csr_matrix((np.concatenate(vv), (np.concatenate(ii), np.concatenate(jj))), shape=(n, n))
-    x = spsolve(A.tocsc(), rhs)
+    # symmetric positive definite: every unknown pixel is connected to a known one (_smooth_fill)
+    x = _spd_solve(A.tocsc(), rhs)
     out = np.zeros(shape)
     out[rows, cols] = x
     return out
