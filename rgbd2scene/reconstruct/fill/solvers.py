@@ -25,6 +25,8 @@ toolbox's works on inverse depth, where a plane is affine in pixel coordinates; 
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import cv2
 import numpy as np
 from scipy import ndimage as ndi
@@ -367,6 +369,11 @@ NYU_SWEEPS = 4
 #: :func:`_nyu_solve`: rounds (LU solve, sweeps) before the direct solve of the whole system is used instead (its
 #: bound shrinks by 1/300 to 1/1000 a round on the benchmark's captures: never reached there).
 NYU_ROUNDS = 60
+#: :func:`_nyu_parts`: N is factorised in two parts side by side only where the smaller part's LU costs at least this
+#: share of the whole (below it the second thread saves little)...
+NYU_SPLIT = 0.15
+#: ... and N has at least this many pixels (a thread's start and the second dissection cost about 1 ms).
+NYU_SPLIT_SIZE = 20000
 
 
 def _nyu_matrix(weights: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float) -> sparse.csr_matrix:
@@ -428,6 +435,69 @@ def _nyu_affinity_planes(grey: np.ndarray, nodes: np.ndarray) -> np.ndarray:
     return out
 
 
+def _nyu_parts(inside: np.ndarray) -> list[np.ndarray]:
+    """N (:func:`_nyu_solve`) as one part, or as two parts of whole 8-connected components (no coupling between them)
+    whose LU costs are about equal: the largest components first, each to the part with the smaller cost so far, a
+    component's cost taken as its size^1.5 (a nested dissection's on a grid); two parts only where the smaller
+    costs at least :data:`NYU_SPLIT` of the whole and N has :data:`NYU_SPLIT_SIZE` pixels or more."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(inside.astype(np.uint8), connectivity=8)
+    cost = stats[1:, cv2.CC_STAT_AREA].astype(np.float64) ** 1.5
+    if count < 3 or stats[1:, cv2.CC_STAT_AREA].sum() < NYU_SPLIT_SIZE:
+        return [inside]
+    part, load = np.zeros(count, dtype=np.int64), [0.0, 0.0]
+    for i in np.argsort(-cost, kind="stable"):
+        part[i + 1] = int(load[1] < load[0])
+        load[part[i + 1]] += cost[i]
+    if min(load) < NYU_SPLIT * sum(load):
+        return [inside]
+    second = part[labels] == 1
+    return [inside & ~second, second]
+
+
+def _dissected(part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pixels of ``part`` in nested dissection order (:func:`dissection_order`, a 3x3 stencil)."""
+    rows, cols = np.nonzero(part)
+    order = dissection_order(rows, cols, reach=1)
+    return rows[order], cols[order]
+
+
+def _nyu_block(pixels: tuple[np.ndarray, np.ndarray], flat_weights: np.ndarray, plane_index: np.ndarray,
+               known: np.ndarray, padded_far: np.ndarray, b: np.ndarray, alpha: float, size: int) -> tuple:
+    """The LU of N's block over ``pixels`` (rows, columns in elimination order; :func:`_nyu_solve`), with what its
+    solve needs: (LU, the pixels' flat indices in the planes, their right-hand side, their coupling to F as a sparse
+    matrix over the planes' ``size`` flat indices)."""
+    h, w = known.shape
+    # the block by columns: column j (pixel p) holds A[q, p] = -w_{7-k}(q) for its neighbour q = p + offset k
+    # (offset 7 - k leads from q back to p)
+    nr, nc = pixels
+    n = nr.size
+    stride = w + 2
+    centre = (nr + 1) * stride + nc + 1  # flat indices into the image padded by one pixel
+    position = np.full((h + 2) * stride, -1, dtype=np.int64)
+    position[centre] = np.arange(n)
+    rows = np.empty((n, 9), dtype=np.int64)
+    values = np.empty((n, 9))
+    rows[:, 8] = np.arange(n)
+    values[:, 8] = np.where(known[nr, nc], 1.0 + alpha, 1.0)
+    coupling_i, coupling_j, coupling_v = [], [], []  # the rows' entries in F's columns (planes' flat indices)
+    n_planes = plane_index[centre]
+    for k, (dr, dc) in enumerate(_OFFSETS8):
+        q = centre + dr * stride + dc
+        rows[:, k] = position[q]
+        values[:, k] = -flat_weights[7 - k][plane_index[q]]
+        to_far = np.flatnonzero(padded_far[q])
+        coupling_i.append(to_far)
+        coupling_j.append(plane_index[q[to_far]])
+        coupling_v.append(flat_weights[k][n_planes[to_far]])
+    present = rows >= 0
+    A = sparse.csc_matrix((values[present], rows[present], np.concatenate([[0], np.cumsum(present.sum(axis=1))])),
+                          shape=(n, n))
+    A.sort_indices()
+    coupling = sparse.csr_matrix((np.concatenate(coupling_v), (np.concatenate(coupling_i),
+                                                                np.concatenate(coupling_j))), shape=(n, size))
+    return _diagonal_pivot_lu(A, ordered=True), n_planes, b[nr, nc], coupling
+
+
 def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float,
                tol: float) -> np.ndarray:
     """Solve the toolbox's system (I - W + alpha G) x = alpha G d over the ``nodes`` (G: the known pixels) until
@@ -445,57 +515,32 @@ def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np
     round on the benchmark's captures, from about 0.2 m after the first: 4 rounds to 1e-8 m). Until session 20:
     GMRES over the whole system preconditioned by the unknowns' LU, 10-13 iterations to a relative residual of
     1e-9, 4e-8 m from the direct solve on the TUM frame with a large hole (here 5e-11 m at the default tolerance).
-    The sweeps work on the four colours of :func:`_colour_planes`, each a contiguous plane.
+    The sweeps work on the four colours of :func:`_colour_planes`, each a contiguous plane. A second thread computes
+    the affinities while N is ordered, and factorises the second part of N where it falls into two (:func:`_nyu_parts`;
+    half of the benchmark's inputs).
     """
     h, w = depth.shape
     unknown = nodes & ~known
     graph_known = nodes & known
-    weights = _nyu_affinity_planes(grey, nodes)  # 0 towards pixels outside the image or the graph
-    distance = cv2.distanceTransform((~unknown).astype(np.uint8), cv2.DIST_C, 3)  # px to the nearest unknown pixel
-    inside = unknown | (graph_known & (distance <= NYU_RING))
-    far = graph_known & ~inside
-    b = np.zeros((h, w))
-    b[graph_known] = alpha * depth[graph_known].astype(np.float64)
-    hp, wp = (h + 1) // 2, (w + 1) // 2
-    # each pixel's flat index in the padded planes; pixels around the image point at a padding cell (index 0)
-    plane_index = np.pad(((np.arange(h)[:, None] % 2 * 2 + np.arange(w) % 2) * (hp + 2) + np.arange(h)[:, None] // 2
-                          + 1) * (wp + 2) + np.arange(w) // 2 + 1, 1).ravel()
-    # N in elimination order; its matrix by columns: column j (pixel p) holds A[q, p] = -w_{7-k}(q) for its
-    # neighbour q = p + offset k (offset 7 - k leads from q back to p)
-    nr, nc = np.nonzero(inside)
-    order = dissection_order(nr, nc, reach=1)
-    nr, nc = nr[order], nc[order]
-    n = nr.size
+    with ThreadPoolExecutor(1) as pool:  # a second core: the affinities while N is ordered, a second part's LU
+        affinities = pool.submit(_nyu_affinity_planes, grey, nodes)  # 0 towards pixels outside the image or graph
+        distance = cv2.distanceTransform((~unknown).astype(np.uint8), cv2.DIST_C, 3)  # px to the nearest unknown
+        inside = unknown | (graph_known & (distance <= NYU_RING))
+        far = graph_known & ~inside
+        parts = [_dissected(part) for part in _nyu_parts(inside)]
+        weights = affinities.result()
+        b = np.zeros((h, w))
+        b[graph_known] = alpha * depth[graph_known].astype(np.float64)
+        hp, wp = (h + 1) // 2, (w + 1) // 2
+        # each pixel's flat index in the padded planes; pixels around the image point at a padding cell (index 0)
+        plane_index = np.pad(((np.arange(h)[:, None] % 2 * 2 + np.arange(w) % 2) * (hp + 2)
+                              + np.arange(h)[:, None] // 2 + 1) * (wp + 2) + np.arange(w) // 2 + 1, 1).ravel()
+        x = _colour_planes(np.where(graph_known, depth, 0.0).astype(np.float64), pad=1)
+        flat = x.ravel()
+        shared = (weights.reshape(8, -1), plane_index, known, np.pad(far, 1).ravel(), b, alpha, flat.size)
+        second = [pool.submit(_nyu_block, part, *shared) for part in parts[1:]]
+        blocks = [_nyu_block(parts[0], *shared)] + [block.result() for block in second]
     stride = w + 2
-    centre = (nr + 1) * stride + nc + 1  # flat indices into the image padded by one pixel
-    position = np.full((h + 2) * stride, -1, dtype=np.int64)
-    position[centre] = np.arange(n)
-    flat_weights = weights.reshape(8, -1)
-    padded_far = np.pad(far, 1).ravel()
-    rows = np.empty((n, 9), dtype=np.int64)
-    values = np.empty((n, 9))
-    rows[:, 8] = np.arange(n)
-    values[:, 8] = np.where(known[nr, nc], 1.0 + alpha, 1.0)
-    coupling_i, coupling_j, coupling_v = [], [], []  # N's rows' entries in F's columns (planes' flat indices)
-    n_planes = plane_index[centre]
-    for k, (dr, dc) in enumerate(_OFFSETS8):
-        q = centre + dr * stride + dc
-        rows[:, k] = position[q]
-        values[:, k] = -flat_weights[7 - k][plane_index[q]]
-        to_far = np.flatnonzero(padded_far[q])
-        coupling_i.append(to_far)
-        coupling_j.append(plane_index[q[to_far]])
-        coupling_v.append(flat_weights[k][n_planes[to_far]])
-    present = rows >= 0
-    A = sparse.csc_matrix((values[present], rows[present], np.concatenate([[0], np.cumsum(present.sum(axis=1))])),
-                          shape=(n, n))
-    A.sort_indices()
-    lu = _diagonal_pivot_lu(A, ordered=True)
-    x = _colour_planes(np.where(graph_known, depth, 0.0).astype(np.float64), pad=1)
-    flat = x.ravel()
-    coupling = sparse.csr_matrix((np.concatenate(coupling_v), (np.concatenate(coupling_i),
-                                                                np.concatenate(coupling_j))), shape=(n, flat.size))
-    b_inside = b[nr, nc]
     # F by distance to the unknown pixels, for the bound (a stable sort of 16-bit integers: a radix sort)
     fr, fc = np.nonzero(far)
     layer = distance[fr, fc].astype(np.int16)
@@ -525,7 +570,8 @@ def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np
         return acc
 
     for _ in range(NYU_ROUNDS):
-        flat[n_planes] = lu.solve(b_inside + coupling @ flat)
+        for lu, n_planes, b_inside, coupling in blocks:
+            flat[n_planes] = lu.solve(b_inside + coupling @ flat)
         for a, c, terms in colours:  # the residual b + W x - (1 + alpha) x
             np.subtract(weighted(a, c, terms), (1.0 + alpha) * x[a, c, 1:-1, 1:-1], out=res[a, c, 1:-1, 1:-1])
         if _nyu_error_bound(np.abs(res.ravel()[f_planes]), layer_starts, layer_weights) <= tol:
@@ -579,7 +625,8 @@ def fill_nyu_colorization(
     reach : only the known pixels within this many px of a mask pixel join the graph (None: all of them,
         as in the toolbox). A known pixel's value in the solution is half its depth plus half its
         neighbours' mean, so the influence of the pixels left out shrinks by about half per pixel: at
-        ``reach=16`` the fill of the TUM frame's holes moves by at most 2e-4 mm, and costs half as much.
+        ``reach=16`` the fill of the TUM frame's holes moves by at most 2e-4 mm (and session 20's GMRES solve
+        cost half as much).
 
     Returns
     -------
