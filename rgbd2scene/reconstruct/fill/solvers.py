@@ -374,6 +374,10 @@ NYU_ROUNDS = 60
 NYU_SPLIT = 0.15
 #: ... and N has at least this many pixels (a thread's start and the second dissection cost about 1 ms).
 NYU_SPLIT_SIZE = 20000
+#: :func:`_nyu_solve` relaxes on the image's colour planes where the graph fills at least this share of its bounding
+#: box, on its own pixels (a sparse product, Jacobi) where less (``auto``'s band graph on the TUM frame: 12 % of the
+#: image, 2x slower on the planes than GMRES was).
+NYU_DENSE = 0.5
 
 
 def _nyu_matrix(weights: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float) -> sparse.csr_matrix:
@@ -464,8 +468,9 @@ def _dissected(part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _nyu_block(pixels: tuple[np.ndarray, np.ndarray], flat_weights: np.ndarray, plane_index: np.ndarray,
                known: np.ndarray, padded_far: np.ndarray, b: np.ndarray, alpha: float, size: int) -> tuple:
     """The LU of N's block over ``pixels`` (rows, columns in elimination order; :func:`_nyu_solve`), with what its
-    solve needs: (LU, the pixels' flat indices in the planes, their right-hand side, their coupling to F as a sparse
-    matrix over the planes' ``size`` flat indices)."""
+    solve needs: (LU, the pixels' places in the solution vector, their right-hand side, their coupling to F as a
+    sparse matrix over its ``size`` places); ``plane_index``: each pixel of the image padded by one pixel -> its
+    place, ``flat_weights`` (8, size) the affinities at each place (:func:`_plane_relaxation`)."""
     h, w = known.shape
     # the block by columns: column j (pixel p) holds A[q, p] = -w_{7-k}(q) for its neighbour q = p + offset k
     # (offset 7 - k leads from q back to p)
@@ -498,69 +503,31 @@ def _nyu_block(pixels: tuple[np.ndarray, np.ndarray], flat_weights: np.ndarray, 
     return _diagonal_pivot_lu(A, ordered=True), n_planes, b[nr, nc], coupling
 
 
-def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float,
-               tol: float) -> np.ndarray:
-    """Solve the toolbox's system (I - W + alpha G) x = alpha G d over the ``nodes`` (G: the known pixels) until
-    the unknown pixels are provably within ``tol`` (metres) of its exact solution.
-
-    Overlapping blocks: N, the unknown pixels and the known ones within :data:`NYU_RING` px of them, is solved
-    exactly by one sparse LU (nested dissection order) given the other known pixels F; then the known pixels
-    (F and N's ring: the overlap) are relaxed by :data:`NYU_SWEEPS` Gauss-Seidel sweeps given the unknown ones;
-    and again. The rows of known pixels are diagonally dominant (1 + alpha against at most 1), which bounds the
-    error: after N's solve, an error e_F on F moves the unknown pixels by at most (1 + alpha)^-(r - 1) max|e_F|
-    where r is the distance from F to them (a known pixel's error is at most 1 / (1 + alpha) of its neighbours'
-    largest, an unknown one's at most its neighbours' largest), and max|e_F| <= max|residual on F| / alpha; summed
-    over the layers of F at each distance D, the residuals of the far layers count by (1 + alpha)^-(D - 1)
-    (:func:`_nyu_error_bound`). It stops when that bound is at most ``tol`` (the bound falls by 1/300 to 1/1000 a
-    round on the benchmark's captures, from about 0.2 m after the first: 4 rounds to 1e-8 m). Until session 20:
-    GMRES over the whole system preconditioned by the unknowns' LU, 10-13 iterations to a relative residual of
-    1e-9, 4e-8 m from the direct solve on the TUM frame with a large hole (here 5e-11 m at the default tolerance).
-    The sweeps work on the four colours of :func:`_colour_planes`, each a contiguous plane. A second thread computes
-    the affinities while N is ordered, and factorises the second part of N where it falls into two (:func:`_nyu_parts`;
-    half of the benchmark's inputs).
-    """
-    h, w = depth.shape
-    unknown = nodes & ~known
-    graph_known = nodes & known
-    with ThreadPoolExecutor(1) as pool:  # a second core: the affinities while N is ordered, a second part's LU
-        affinities = pool.submit(_nyu_affinity_planes, grey, nodes)  # 0 towards pixels outside the image or graph
-        distance = cv2.distanceTransform((~unknown).astype(np.uint8), cv2.DIST_C, 3)  # px to the nearest unknown
-        inside = unknown | (graph_known & (distance <= NYU_RING))
-        far = graph_known & ~inside
-        parts = [_dissected(part) for part in _nyu_parts(inside)]
-        weights = affinities.result()
-        b = np.zeros((h, w))
-        b[graph_known] = alpha * depth[graph_known].astype(np.float64)
-        hp, wp = (h + 1) // 2, (w + 1) // 2
-        # each pixel's flat index in the padded planes; pixels around the image point at a padding cell (index 0)
-        plane_index = np.pad(((np.arange(h)[:, None] % 2 * 2 + np.arange(w) % 2) * (hp + 2)
-                              + np.arange(h)[:, None] // 2 + 1) * (wp + 2) + np.arange(w) // 2 + 1, 1).ravel()
-        x = _colour_planes(np.where(graph_known, depth, 0.0).astype(np.float64), pad=1)
-        flat = x.ravel()
-        shared = (weights.reshape(8, -1), plane_index, known, np.pad(far, 1).ravel(), b, alpha, flat.size)
-        second = [pool.submit(_nyu_block, part, *shared) for part in parts[1:]]
-        blocks = [_nyu_block(parts[0], *shared)] + [block.result() for block in second]
-    stride = w + 2
-    # F by distance to the unknown pixels, for the bound (a stable sort of 16-bit integers: a radix sort)
-    fr, fc = np.nonzero(far)
-    layer = distance[fr, fc].astype(np.int16)
-    by_layer = np.argsort(layer, kind="stable")
-    f_planes, layer = plane_index[(fr[by_layer] + 1) * stride + fc[by_layer] + 1], layer[by_layer]
-    layer_starts = np.flatnonzero(np.r_[True, layer[1:] != layer[:-1]]) if layer.size else np.zeros(0, np.int64)
-    layer_weights = (1.0 + alpha) ** -(layer[layer_starts].astype(np.float64) - 1.0) / alpha
-    # colour (a, c)'s neighbour at offset (dr, dc) is colour ((a + dr) % 2, (c + dc) % 2), ((a + dr) // 2,
-    # (c + dc) // 2) away in its plane
+def _plane_relaxation(grey: np.ndarray, nodes: np.ndarray, graph_known: np.ndarray, b: np.ndarray, x0: np.ndarray,
+                      alpha: float) -> tuple:
+    """:func:`_nyu_solve`'s unknowns and relaxation on the four colour planes of the image (:func:`_colour_planes`):
+    ``(x, index, weights, residual, relax, image)``: x the flat solution vector, ``index`` each pixel of the image
+    padded by one pixel -> its place in x (pixels around the image: a padding cell, 0), ``weights`` (8, x.size) the
+    affinities at each place, ``residual()`` b + W x - (1 + alpha) x at every place, ``relax()`` :data:`NYU_SWEEPS`
+    four-colour Gauss-Seidel sweeps over the known pixels, ``image()`` x as an (H, W) image."""
+    h, w = nodes.shape
+    hp, wp = (h + 1) // 2, (w + 1) // 2
+    weights = _nyu_affinity_planes(grey, nodes)
+    rows, cols = np.arange(h)[:, None], np.arange(w)
+    index = np.pad(((rows % 2 * 2 + cols % 2) * (hp + 2) + rows // 2 + 1) * (wp + 2) + cols // 2 + 1, 1).ravel()
+    x = _colour_planes(x0, pad=1)
     b_planes, known_planes = _colour_planes(b), _colour_planes(graph_known)
 
     def neighbours(a: int, c: int, dr: int, dc: int) -> np.ndarray:
-        """The plane view of colour (a, c)'s neighbours at offset (dr, dc)."""
+        """The plane view of colour (a, c)'s neighbours at offset (dr, dc): colour ((a + dr) % 2, (c + dc) % 2),
+        ((a + dr) // 2, (c + dc) // 2) away in its plane."""
         (ra, si), (ca, sj) = divmod(a + dr, 2)[::-1], divmod(c + dc, 2)[::-1]
         return x[ra, ca, 1 + si:1 + si + hp, 1 + sj:1 + sj + wp]
 
     colours = [(a, c, [(weights[k, a, c, 1:-1, 1:-1], neighbours(a, c, dr, dc))
                        for k, (dr, dc) in enumerate(_OFFSETS8)]) for a in (0, 1) for c in (0, 1)]
     acc, part = np.empty((hp, wp)), np.empty((hp, wp))
-    res = np.zeros((2, 2, hp + 2, wp + 2))
+    res = np.zeros(x.shape)
 
     def weighted(a: int, c: int, terms: list) -> np.ndarray:
         """Colour (a, c)'s b + W x."""
@@ -569,21 +536,120 @@ def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np
             np.add(acc, np.multiply(wk, view, out=part), out=acc)
         return acc
 
-    for _ in range(NYU_ROUNDS):
-        for lu, n_planes, b_inside, coupling in blocks:
-            flat[n_planes] = lu.solve(b_inside + coupling @ flat)
-        for a, c, terms in colours:  # the residual b + W x - (1 + alpha) x
+    def residual() -> np.ndarray:
+        for a, c, terms in colours:
             np.subtract(weighted(a, c, terms), (1.0 + alpha) * x[a, c, 1:-1, 1:-1], out=res[a, c, 1:-1, 1:-1])
-        if _nyu_error_bound(np.abs(res.ravel()[f_planes]), layer_starts, layer_weights) <= tol:
-            out = np.empty((2 * hp, 2 * wp))
-            for a in (0, 1):
-                for c in (0, 1):
-                    out[a::2, c::2] = x[a, c, 1:-1, 1:-1]
-            return np.where(nodes, out[:h, :w], np.nan)
+        return res.ravel()
+
+    def relax() -> None:
         for _ in range(NYU_SWEEPS):
             for a, c, terms in colours:
                 np.copyto(x[a, c, 1:-1, 1:-1], np.multiply(weighted(a, c, terms), 1.0 / (1.0 + alpha), out=acc),
                           where=known_planes[a, c])
+
+    def image() -> np.ndarray:
+        out = np.empty((2 * hp, 2 * wp))
+        for a in (0, 1):
+            for c in (0, 1):
+                out[a::2, c::2] = x[a, c, 1:-1, 1:-1]
+        return out[:h, :w]
+
+    return x.ravel(), index, weights.reshape(8, -1), residual, relax, image
+
+
+def _node_relaxation(grey: np.ndarray, nodes: np.ndarray, graph_known: np.ndarray, b: np.ndarray, x0: np.ndarray,
+                     alpha: float) -> tuple:
+    """As :func:`_plane_relaxation` on the graph's pixels alone (a sparse graph in its bounding box: ``auto``'s graphs
+    of the pixels near its holes, a tenth to a third of the box): x holds one place per graph pixel (row-major) and a
+    last place, 0, for every pixel outside the graph; ``relax()`` is 2 :data:`NYU_SWEEPS` Jacobi sweeps (each cuts
+    the error by about 2, a Gauss-Seidel sweep by about 4) by a sparse product over the known pixels' rows."""
+    h, w = nodes.shape
+    gr, gc = np.nonzero(nodes)
+    m = gr.size
+    weights = np.zeros((8, m + 1))
+    weights[:, :m] = nyu_affinities(grey, nodes, at=(gr, gc))
+    stride = w + 2
+    index = np.full((h + 2) * stride, m, dtype=np.int64)
+    index[(gr + 1) * stride + gc + 1] = np.arange(m)
+    x = np.zeros(m + 1)
+    x[:m] = x0[gr, gc]
+    known = np.flatnonzero(graph_known[gr, gc])
+    centre = (gr[known] + 1) * stride + gc[known] + 1
+    columns = np.stack([index[centre + dr * stride + dc] for dr, dc in _OFFSETS8], axis=1)
+    W = sparse.csr_matrix((weights[:, known].T.ravel(), columns.ravel(), np.arange(0, 8 * known.size + 1, 8)),
+                          shape=(known.size, m + 1))
+    b_known = b[gr[known], gc[known]]
+    res = np.zeros(m + 1)
+
+    def residual() -> np.ndarray:
+        res[known] = b_known + W @ x - (1.0 + alpha) * x[known]
+        return res
+
+    def relax() -> None:
+        for _ in range(2 * NYU_SWEEPS):
+            x[known] = (b_known + W @ x) / (1.0 + alpha)
+
+    def image() -> np.ndarray:
+        out = np.zeros((h, w))
+        out[gr, gc] = x[:m]
+        return out
+
+    return x, index, weights, residual, relax, image
+
+
+def _nyu_solve(depth: np.ndarray, grey: np.ndarray, nodes: np.ndarray, known: np.ndarray, alpha: float,
+               tol: float) -> np.ndarray:
+    """Solve the toolbox's system (I - W + alpha G) x = alpha G d over the ``nodes`` (G: the known pixels) until
+    the unknown pixels are provably within ``tol`` (metres) of its exact solution.
+
+    Overlapping blocks: N, the unknown pixels and the known ones within :data:`NYU_RING` px of them, is solved
+    exactly by one sparse LU (nested dissection order) given the other known pixels F; then the known pixels
+    (F and N's ring: the overlap) are relaxed given the unknown ones; and again. The rows of known pixels are
+    diagonally dominant (1 + alpha against at most 1), which bounds the error: after N's solve, an error e_F on F
+    moves the unknown pixels by at most (1 + alpha)^-(r - 1) max|e_F| where r is the distance from F to them (a
+    known pixel's error is at most 1 / (1 + alpha) of its neighbours' largest, an unknown one's at most its
+    neighbours' largest), and max|e_F| <= max|residual on F| / alpha; summed over the layers of F at each distance
+    D, the residuals of the far layers count by (1 + alpha)^-(D - 1) (:func:`_nyu_error_bound`). It stops when that
+    bound is at most ``tol`` (the bound falls by 1/300 to 1/1000 a round on the benchmark's captures, from about
+    0.2 m after the first: 4 rounds to 1e-8 m). Until session 20: GMRES over the whole system preconditioned by the
+    unknowns' LU, 10-13 iterations to a relative residual of 1e-9, 4e-8 m from the direct solve on the TUM frame
+    with a large hole (here 2.4e-10 m at the default tolerance).
+
+    The relaxation works on the four colour planes of the image (:func:`_plane_relaxation`) where the graph fills at
+    least :data:`NYU_DENSE` of its bounding box, else on the graph's pixels alone (:func:`_node_relaxation`). A
+    second thread computes the affinities while N is ordered, and factorises the second part of N where it falls
+    into two (:func:`_nyu_parts`; half of the benchmark's inputs).
+    """
+    h, w = depth.shape
+    unknown = nodes & ~known
+    graph_known = nodes & known
+    b = np.zeros((h, w))
+    b[graph_known] = alpha * depth[graph_known].astype(np.float64)
+    x0 = np.where(graph_known, depth, 0.0).astype(np.float64)
+    relaxation = _plane_relaxation if nodes.mean() >= NYU_DENSE else _node_relaxation
+    with ThreadPoolExecutor(1) as pool:  # a second core: the affinities while N is ordered, a second part's LU
+        prepared = pool.submit(relaxation, grey, nodes, graph_known, b, x0, alpha)
+        distance = cv2.distanceTransform((~unknown).astype(np.uint8), cv2.DIST_C, 3)  # px to the nearest unknown
+        inside = unknown | (graph_known & (distance <= NYU_RING))
+        far = graph_known & ~inside
+        parts = [_dissected(part) for part in _nyu_parts(inside)]
+        flat, index, weights, residual, relax, image = prepared.result()
+        shared = (weights, index, known, np.pad(far, 1).ravel(), b, alpha, flat.size)
+        second = [pool.submit(_nyu_block, part, *shared) for part in parts[1:]]
+        blocks = [_nyu_block(parts[0], *shared)] + [block.result() for block in second]
+    # F by distance to the unknown pixels, for the bound (a stable sort of 16-bit integers: a radix sort)
+    fr, fc = np.nonzero(far)
+    layer = distance[fr, fc].astype(np.int16)
+    by_layer = np.argsort(layer, kind="stable")
+    f_index, layer = index[(fr[by_layer] + 1) * (w + 2) + fc[by_layer] + 1], layer[by_layer]
+    layer_starts = np.flatnonzero(np.r_[True, layer[1:] != layer[:-1]]) if layer.size else np.zeros(0, np.int64)
+    layer_weights = (1.0 + alpha) ** -(layer[layer_starts].astype(np.float64) - 1.0) / alpha
+    for _ in range(NYU_ROUNDS):
+        for lu, n_index, b_inside, coupling in blocks:
+            flat[n_index] = lu.solve(b_inside + coupling @ flat)
+        if _nyu_error_bound(np.abs(residual()[f_index]), layer_starts, layer_weights) <= tol:
+            return np.where(nodes, image(), np.nan)
+        relax()
     # not within tol (never seen): the direct solve
     out = np.full((h, w), np.nan)
     matrix = _nyu_matrix(nyu_affinities(grey, nodes), nodes, known, alpha)
