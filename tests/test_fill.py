@@ -25,6 +25,7 @@ from rgbd2scene.reconstruct.fill import (
     fill_nyu_colorization,
     fill_row_background,
     shadow_pixels,
+    solvers,
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import (
@@ -1467,13 +1468,16 @@ def test_nyu_affinity_planes_are_the_affinities_to_the_bit():
         assert np.array_equal(planes, _colour_planes(nyu_affinities(grey, nodes), pad=1))
 
 
-def test_nyu_solve_is_within_its_bound_of_the_direct_solve_on_a_large_hole():
-    """The NYU colorization's solve (overlapping LU block and Gauss-Seidel sweeps, stopped by its error bound) against
-    a direct sparse solve of the same whole-image system: a textured scene with a depth step, a large hole (8 % of
-    the image, across the step), small holes, and known pixels far from every hole (F is not empty, so the rounds and
-    the bound are used). The unknown pixels lie within the tolerance of the direct solution at each tolerance, a
-    loose tolerance stops earlier (a larger error than the tight one), and the public fill is the float32 rounding of
-    the tight solve."""
+@pytest.mark.parametrize("dense", [0.0, 2.0])
+def test_nyu_solve_is_within_its_bound_of_the_direct_solve_on_a_large_hole(dense, monkeypatch):
+    """The NYU colorization's solve (overlapping LU block and relaxation of the known pixels, stopped by its error
+    bound) against a direct sparse solve of the same whole-image system: a textured scene with a depth step, a large
+    hole (8 % of the image, across the step), small holes, and known pixels far from every hole (F is not empty, so
+    the rounds and the bound are used). The unknown pixels lie within the tolerance of the direct solution at each
+    tolerance, a loose tolerance stops earlier (a larger error than the tight one), and the public fill is the float32
+    rounding of the tight solve; with the relaxation on the colour planes and on the graph's pixels (``dense``:
+    :data:`~rgbd2scene.reconstruct.fill.solvers.NYU_DENSE`)."""
+    monkeypatch.setattr(solvers, "NYU_DENSE", dense)
     rng = np.random.default_rng(7)
     h, w = 120, 160
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
