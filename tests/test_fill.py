@@ -8,6 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 from scipy import ndimage
+from scipy.sparse.linalg import spsolve
 
 from rgbd2scene.capture.sensors import KINECT_V1, SENSORS, get_sensor
 from rgbd2scene.reconstruct.fill import (
@@ -24,6 +25,7 @@ from rgbd2scene.reconstruct.fill import (
     fill_nyu_colorization,
     fill_row_background,
     shadow_pixels,
+    solvers,
     step_runs,
 )
 from rgbd2scene.reconstruct.fill.holes import (
@@ -54,9 +56,14 @@ from rgbd2scene.reconstruct.fill.policy import (
     stepped_strips,
 )
 from rgbd2scene.reconstruct.fill.solvers import (
+    _colour_planes,
+    _nyu_affinity_planes,
+    _nyu_matrix,
+    _nyu_solve,
     clip_to_rim,
     clip_to_surround,
     dissection_order,
+    grey_levels,
     nyu_affinities,
     smooth_rim,
 )
@@ -1528,6 +1535,53 @@ def test_nyu_affinities_at_chosen_pixels_are_those_of_the_whole_image_to_the_bit
     assert part.shape == (8, rows.size)
     assert np.array_equal(part, full[:, rows, cols])
     assert np.allclose(part.sum(axis=0)[part.sum(axis=0) > 0], 1.0)
+
+
+def test_nyu_affinity_planes_are_the_affinities_to_the_bit():
+    """The solve's affinities in the four colour planes are :func:`nyu_affinities`' (odd sizes: planes beyond the
+    image stay zero)."""
+    rng = np.random.default_rng(4)
+    for h, w in ((13, 17), (40, 50), (7, 4)):
+        grey = rng.random((h, w))
+        nodes = rng.random((h, w)) < 0.8
+        planes = _nyu_affinity_planes(grey, nodes)
+        assert np.array_equal(planes, _colour_planes(nyu_affinities(grey, nodes), pad=1))
+
+
+@pytest.mark.parametrize("dense", [0.0, 2.0])
+def test_nyu_solve_is_within_its_bound_of_the_direct_solve_on_a_large_hole(dense, monkeypatch):
+    """The NYU colorization's solve (overlapping LU block and relaxation of the known pixels, stopped by its error
+    bound) against a direct sparse solve of the same whole-image system: a textured scene with a depth step, a large
+    hole (8 % of the image, across the step), small holes, and known pixels far from every hole (F is not empty, so
+    the rounds and the bound are used). The unknown pixels lie within the tolerance of the direct solution at each
+    tolerance, a loose tolerance stops earlier (a larger error than the tight one), and the public fill is the float32
+    rounding of the tight solve; with the relaxation on the colour planes and on the graph's pixels (``dense``:
+    :data:`~rgbd2scene.reconstruct.fill.solvers.NYU_DENSE`)."""
+    monkeypatch.setattr(solvers, "NYU_DENSE", dense)
+    rng = np.random.default_rng(7)
+    h, w = 120, 160
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    truth = 1.5 + 0.004 * u + 0.003 * v + (u > 70) * 0.8 + 0.02 * np.sin(v / 5)
+    rgb = np.clip(rng.normal(0.5, 0.1, (h, w, 3)) + (u > 70)[..., None] * 0.3 + 0.1 * np.sin(u / 4)[..., None], 0, 1)
+    rgb8 = np.round(rgb * 255).astype(np.uint8)
+    holes = ((u - 75) / 28) ** 2 + ((v - 60) / 20) ** 2 <= 1
+    assert 0.06 < holes.mean() < 0.10
+    holes |= rng.random((h, w)) < 0.01
+    holes[:, :4] = True  # a band at the edge
+    depth = np.where(holes, np.nan, truth)
+    known = ~holes
+    nodes = np.ones((h, w), bool)
+    grey = grey_levels(rgb8, (h, w))
+    matrix = _nyu_matrix(nyu_affinities(grey, nodes), nodes, known, 1.0).tocsc()
+    direct = spsolve(matrix, np.where(known, depth, 0.0).ravel()).reshape(h, w)
+    errors = {}
+    for tol in (1e-3, 1e-8):
+        x = _nyu_solve(depth, grey, nodes, known, 1.0, tol)
+        errors[tol] = np.abs(x[holes] - direct[holes]).max()
+        assert errors[tol] <= tol
+    assert errors[1e-3] > 10 * errors[1e-8]
+    out = fill_nyu_colorization(depth.astype(np.float32), rgb8, rtol=1e-8 / truth.max())
+    assert np.abs(out[holes] - direct[holes]).max() <= np.spacing(np.float32(truth.max())) + 1e-8
 
 
 def _colour_edge_at_a_step(surface, noise: int):

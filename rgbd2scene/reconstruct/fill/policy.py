@@ -747,8 +747,9 @@ PLANE_SCALE = 3
 EDGE_REACH = 10
 #: ``auto``'s NYU colorization graph: the known pixels within this many px of the holes (its docstring).
 NYU_REACH = 16
-#: ``auto``'s NYU colorization: GMRES stops at this relative residual (TUM frame: 5, 6 and 5 iterations for its three
-#: solves against 8, 8 and 7 at 1e-7; the filled depth moves by at most 0.2 mm).
+#: ``auto``'s NYU colorization: its solve stops once the filled depth is provably within this share of the largest
+#: known depth of the exact solution (session 20 set it for GMRES's relative residual, where the fill moved by up to
+#: 0.2 mm against 1e-7; the bound of session 21's solve holds at 0.1 mm on the TUM frame).
 NYU_RTOL = 1e-5
 #: Copies lie this many px away from any invalid pixel: a copy must be enclosed by valid depth, as the hole is.
 COPY_CLEARANCE = 6
