@@ -721,17 +721,28 @@ def test_auto_fills_the_band_in_the_same_thin_plate_as_the_holes_beside_it():
     assert np.abs(res.depth[band] - truth[band]).max() < 0.03
 
 
+def _textured_step(seed: int, *, depth: float, slope: tuple[float, float], step_at: int, step: float,
+                   ripple: tuple[float, float], stripes: float, shape: tuple[int, int] = (120, 160)):
+    """A tilted plane (``depth`` m, ``slope`` m per px along u and v) stepping back by ``step`` m beyond column
+    ``step_at``, with a ripple (amplitude m, period px along v), and a noisy colour image that brightens across the
+    step and has vertical stripes (period px): (rng after drawing the colours, u, v, depth, uint8 RGB)."""
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    truth = depth + slope[0] * u + slope[1] * v + (u > step_at) * step + ripple[0] * np.sin(v / ripple[1])
+    rgb = np.clip(rng.normal(0.5, 0.1, (h, w, 3)) + (u > step_at)[..., None] * 0.3
+                  + 0.1 * np.sin(u / stripes)[..., None], 0, 1)
+    return rng, u, v, truth, np.round(rgb * 255).astype(np.uint8)
+
+
 def test_auto_nyu_tolerance_moves_the_fill_by_a_small_share_of_its_error():
     """``auto`` stops its NYU colorization's GMRES at ``NYU_RTOL`` (fewer iterations): on a textured scene with a
     depth step and holes of several sizes its fill stays within a tenth of the fill's own error (against the true
     depth) of a solve to 1e-12 (here 2.2 mm against 43 mm), and the tolerance is loose enough to change it at all
     (it is no longer the 1e-7 solve)."""
-    rng = np.random.default_rng(3)
-    h, w = 120, 160
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    truth = 2.0 + 0.004 * u + 0.002 * v + (u > 90) * 0.6 + 0.01 * np.sin(v / 7)
-    rgb = np.clip(rng.normal(0.5, 0.1, (h, w, 3)) + (u > 90)[..., None] * 0.3 + 0.1 * np.sin(u / 5)[..., None], 0, 1)
-    rgb8 = np.round(rgb * 255).astype(np.uint8)
+    rng, u, v, truth, rgb8 = _textured_step(3, depth=2.0, slope=(0.004, 0.002), step_at=90, step=0.6,
+                                            ripple=(0.01, 7), stripes=5)
+    h, w = u.shape
     holes = rng.random((h, w)) < 0.05
     holes[30:70, 60:120] = True  # across the step
     holes[90:100, 10:40] = True
@@ -1558,12 +1569,9 @@ def test_nyu_solve_is_within_its_bound_of_the_direct_solve_on_a_large_hole(dense
     rounding of the tight solve; with the relaxation on the colour planes and on the graph's pixels (``dense``:
     :data:`~rgbd2scene.reconstruct.fill.solvers.NYU_DENSE`)."""
     monkeypatch.setattr(solvers, "NYU_DENSE", dense)
-    rng = np.random.default_rng(7)
-    h, w = 120, 160
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    truth = 1.5 + 0.004 * u + 0.003 * v + (u > 70) * 0.8 + 0.02 * np.sin(v / 5)
-    rgb = np.clip(rng.normal(0.5, 0.1, (h, w, 3)) + (u > 70)[..., None] * 0.3 + 0.1 * np.sin(u / 4)[..., None], 0, 1)
-    rgb8 = np.round(rgb * 255).astype(np.uint8)
+    rng, u, v, truth, rgb8 = _textured_step(7, depth=1.5, slope=(0.004, 0.003), step_at=70, step=0.8,
+                                            ripple=(0.02, 5), stripes=4)
+    h, w = u.shape
     holes = ((u - 75) / 28) ** 2 + ((v - 60) / 20) ** 2 <= 1
     assert 0.06 < holes.mean() < 0.10
     holes |= rng.random((h, w)) < 0.01
