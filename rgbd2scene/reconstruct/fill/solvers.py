@@ -316,11 +316,8 @@ def nyu_affinities(grey: np.ndarray, nodes: np.ndarray,
     # element by element, so the same bits)
     if at is None:
         weights = np.empty((8, h, w))
-        step = max(AFFINITY_BLOCK // w, 1)
-        for r0 in range(0, h, step):
-            r1 = min(r0 + step, h)
-            nb = np.stack([padded[1 + dr + r0:1 + dr + r1, 1 + dc:1 + dc + w] for dr, dc in _OFFSETS8])
-            weights[:, r0:r1] = _affinity_block(nb, grey[r0:r1])
+        for r0, block in _affinity_rows(grey, padded, max(AFFINITY_BLOCK // w, 1)):
+            weights[:, r0:r0 + block.shape[1]] = block
         return weights
     rows, cols = at
     weights = np.empty((8, rows.size))
@@ -336,6 +333,16 @@ def nyu_affinities(grey: np.ndarray, nodes: np.ndarray,
 
 #: :func:`nyu_affinities` works on blocks of this many pixels (8 x 16k float64: 1 MB an array, in the cache).
 AFFINITY_BLOCK = 16384
+
+
+def _affinity_rows(grey: np.ndarray, padded: np.ndarray, step: int):
+    """:func:`nyu_affinities` of every pixel, ``step`` rows at a time: yields (first row, float64 (8, rows, W));
+    ``padded``: the grey levels on the graph, NaN elsewhere and around the image."""
+    h, w = grey.shape
+    for r0 in range(0, h, step):
+        r1 = min(r0 + step, h)
+        nb = np.stack([padded[1 + dr + r0:1 + dr + r1, 1 + dc:1 + dc + w] for dr, dc in _OFFSETS8])
+        yield r0, _affinity_block(nb, grey[r0:r1])
 
 
 def _affinity_block(nb: np.ndarray, grey: np.ndarray) -> np.ndarray:
@@ -430,10 +437,7 @@ def _nyu_affinity_planes(grey: np.ndarray, nodes: np.ndarray) -> np.ndarray:
     padded = np.pad(np.where(nodes, grey, np.nan), 1, constant_values=np.nan)
     out = np.zeros((8, 2, 2, (h + 1) // 2 + 2, (w + 1) // 2 + 2))
     step = max(AFFINITY_BLOCK // w // 2 * 2, 2)  # an even number of rows: each block starts on colour row 0
-    for r0 in range(0, h, step):
-        r1 = min(r0 + step, h)
-        nb = np.stack([padded[1 + dr + r0:1 + dr + r1, 1 + dc:1 + dc + w] for dr, dc in _OFFSETS8])
-        block = _affinity_block(nb, grey[r0:r1])
+    for r0, block in _affinity_rows(grey, padded, step):
         for a in (0, 1):
             for c in (0, 1):
                 part = block[:, a::2, c::2]
